@@ -1,0 +1,23 @@
+"""The NoisePolicy contract: a policy whose only randomness is an injected noise array."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+
+class NoisePolicy(Protocol):
+    """Maps (observation, initial noise) to an action chunk, deterministically.
+
+    `noise_shape` is (H, A): prediction horizon x action dim. `act` returns the first
+    `n_exec` actions of each predicted chunk; the caller replans after executing them.
+    """
+
+    name: str
+    noise_shape: tuple[int, int]
+    n_exec: int
+
+    def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """obs [B, obs_dim] float32, noise [B, H, A] float32 -> actions [B, n_exec, A]."""
+        ...

@@ -1,0 +1,135 @@
+"""Flow-matching and DDIM policies on one MLP denoiser, saved as safetensors + JSON config."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from goldenticket.errors import UserError
+
+KINDS = ("flow", "ddim")
+
+
+@dataclass
+class PolicyConfig:
+    """Everything needed to rebuild a policy besides its weights."""
+
+    name: str
+    kind: str  # "flow" (Euler, t=1 noise -> t=0 action) or "ddim" (eta=0, epsilon prediction)
+    obs_dim: int
+    action_dim: int
+    horizon: int = 8
+    n_exec: int = 4
+    hidden: int = 256
+    layers: int = 4
+    steps: int = 10  # Euler steps (flow) or DDIM steps (ddim)
+    train_timesteps: int = 100  # DDIM's discrete training schedule
+
+
+def _time_embedding(t: torch.Tensor, dim: int = 32) -> torch.Tensor:
+    freqs = torch.exp(torch.arange(dim // 2, dtype=t.dtype) * (-math.log(1000.0) / (dim // 2)))
+    angles = 1000.0 * t[:, None] * freqs[None]
+    return torch.cat([angles.sin(), angles.cos()], dim=1)
+
+
+class Denoiser(nn.Module):
+    """MLP on [normalised obs, noisy chunk, time embedding] -> chunk-shaped output."""
+
+    def __init__(self, cfg: PolicyConfig):
+        super().__init__()
+        width = cfg.horizon * cfg.action_dim
+        dims = [cfg.obs_dim + width + 32] + [cfg.hidden] * cfg.layers
+        blocks: list[nn.Module] = []
+        for d_in, d_out in zip(dims[:-1], dims[1:], strict=True):
+            blocks += [nn.Linear(d_in, d_out), nn.GELU()]
+        self.net = nn.Sequential(*blocks, nn.Linear(cfg.hidden, width))
+        self.register_buffer("obs_mean", torch.zeros(cfg.obs_dim))
+        self.register_buffer("obs_std", torch.ones(cfg.obs_dim))
+        self.register_buffer("act_low", -torch.ones(cfg.action_dim))
+        self.register_buffer("act_high", torch.ones(cfg.action_dim))
+
+    def forward(self, obs_n: torch.Tensor, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        flat = torch.cat([obs_n, x.flatten(1), _time_embedding(t)], dim=1)
+        return self.net(flat).view_as(x)
+
+    def normalise_obs(self, obs: torch.Tensor) -> torch.Tensor:
+        return (obs - self.obs_mean) / self.obs_std
+
+    def normalise_actions(self, actions: torch.Tensor) -> torch.Tensor:
+        return 2 * (actions - self.act_low) / (self.act_high - self.act_low) - 1
+
+    def denormalise_actions(self, x: torch.Tensor) -> torch.Tensor:
+        return (x.clamp(-1, 1) + 1) / 2 * (self.act_high - self.act_low) + self.act_low
+
+
+def ddim_alpha_bar(t: torch.Tensor) -> torch.Tensor:
+    """Cosine schedule: cumulative signal fraction at continuous time t in [0, 1]."""
+    return torch.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2
+
+
+class MLPPolicy:
+    """A frozen denoising policy; `act` is deterministic given (obs, noise)."""
+
+    def __init__(self, cfg: PolicyConfig, model: Denoiser | None = None):
+        if cfg.kind not in KINDS:
+            raise UserError(f"unknown policy kind {cfg.kind!r}; choose from {KINDS}")
+        self.cfg = cfg
+        self.model = (model or Denoiser(cfg)).eval()
+
+    name = property(lambda self: self.cfg.name)
+    n_exec = property(lambda self: self.cfg.n_exec)
+    noise_shape = property(lambda self: (self.cfg.horizon, self.cfg.action_dim))
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        obs_n = self.model.normalise_obs(torch.as_tensor(obs, dtype=torch.float32))
+        x = torch.as_tensor(noise, dtype=torch.float32)
+        x = self._flow(obs_n, x) if self.cfg.kind == "flow" else self._ddim(obs_n, x)
+        return self.model.denormalise_actions(x)[:, : self.cfg.n_exec].numpy()
+
+    def _flow(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        ts = torch.linspace(1.0, 0.0, self.cfg.steps + 1)
+        for t, t_next in zip(ts[:-1], ts[1:], strict=True):
+            x = x + (t_next - t) * self.model(obs_n, x, t.expand(len(x)))
+        return x
+
+    def _ddim(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        grid = torch.linspace(1.0, 0.0, self.cfg.steps + 1)
+        T = self.cfg.train_timesteps
+        ts = torch.round(grid * (T - 1)) / (T - 1)  # on the discrete training grid
+        for t, t_next in zip(ts[:-1], ts[1:], strict=True):
+            a, a_next = ddim_alpha_bar(t), ddim_alpha_bar(t_next)
+            eps = self.model(obs_n, x, t.expand(len(x)))
+            x0 = ((x - (1 - a).sqrt() * eps) / a.sqrt()).clamp(-1.5, 1.5)
+            x = a_next.sqrt() * x0 + (1 - a_next).sqrt() * eps
+        return x
+
+    def weights_hash(self) -> str:
+        digest = hashlib.sha256()
+        for key, value in sorted(self.model.state_dict().items()):
+            digest.update(key.encode())
+            digest.update(value.detach().contiguous().numpy().tobytes())
+        return digest.hexdigest()[:16]
+
+    def save(self, directory: Path) -> None:
+        directory.mkdir(parents=True, exist_ok=True)
+        save_file(self.model.state_dict(), str(directory / "model.safetensors"))
+        (directory / "config.json").write_text(json.dumps(asdict(self.cfg), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, directory: Path) -> MLPPolicy:
+        try:
+            cfg = PolicyConfig(**json.loads((directory / "config.json").read_text()))
+            model = Denoiser(cfg)
+            model.load_state_dict(load_file(str(directory / "model.safetensors")))
+        except (OSError, ValueError, TypeError, RuntimeError) as exc:
+            raise UserError(f"cannot load policy from {directory}: {exc}") from None
+        return cls(cfg, model)

@@ -1,0 +1,123 @@
+"""Batched Monte-Carlo rollouts: (noise source, seed) episodes -> per-episode results."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from goldenticket.noise import NoiseSource
+from goldenticket.policies import NoisePolicy, load_policy
+from goldenticket.tasks import OBJECTIVES, Task, get_task
+
+
+@dataclass(frozen=True)
+class Episode:
+    source: NoiseSource
+    seed: int
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    seed: int
+    success: bool
+    ret: float  # the objective's return for this episode
+    length: int
+    wall_time: float
+
+
+def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
+            objective: str = "success", envs: list | None = None) -> list[EpisodeResult]:
+    """Run episodes side by side: one batched policy call per replanning step for all live envs.
+
+    An env leaves the batch when it succeeds or reaches `task.max_steps`. Each episode's
+    result depends only on its (source, seed), never on its batch slot.
+    """
+    n = len(episodes)
+    envs = [] if envs is None else envs
+    envs += [task.make_env() for _ in range(n - len(envs))]
+    start = time.perf_counter()
+    obs = np.stack([env.reset(ep.seed) for env, ep in zip(envs, episodes, strict=False)])
+    samplers = [ep.source.sampler(ep.seed, policy.noise_shape) for ep in episodes]
+    length = np.zeros(n, dtype=int)
+    success = np.zeros(n, dtype=bool)
+    live = list(range(n))
+    while live:
+        noise = np.stack([samplers[i]() for i in live])
+        chunks = policy.act(obs[live], noise)
+        for i, chunk in zip(live, chunks, strict=True):
+            for action in chunk:
+                obs[i], _, success[i] = envs[i].step(action)
+                length[i] += 1
+                if success[i] or length[i] >= task.max_steps:
+                    break
+        live = [i for i in live if not success[i] and length[i] < task.max_steps]
+    wall = (time.perf_counter() - start) / max(n, 1)
+    score = OBJECTIVES[objective]
+    return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]),
+                                                            task.max_steps), int(length[i]), wall)
+            for i, ep in enumerate(episodes)]
+
+
+# --- process pool: each worker loads the policy and task once, then runs shards ---------------
+_worker: dict = {}
+
+
+def _init_worker(policy_name: str, task_name: str, max_steps: int, objective: str) -> None:
+    torch.set_num_threads(1)
+    _worker.update(policy=load_policy(policy_name), task=get_task(task_name, max_steps),
+                   objective=objective, envs=[])
+
+
+def _run_shard(episodes: list[Episode]) -> list[EpisodeResult]:
+    w = _worker
+    return rollout(w["policy"], w["task"], episodes, w["objective"], w["envs"])
+
+
+class Engine:
+    """Evaluates episodes in-process (workers=1) or across a pool of worker processes.
+
+    Shards are fixed by episode order, never by timing, so every backend gives the same
+    results for the same episodes.
+    """
+
+    def __init__(self, policy_name: str, task: Task, *, objective: str = "success",
+                 workers: int = 1, shard_size: int = 32):
+        self.policy = load_policy(policy_name)
+        self.task, self.objective, self.shard_size = task, objective, shard_size
+        self._envs: list = []
+        self._pool = None
+        if workers > 1:
+            ctx = mp.get_context("spawn")
+            self._pool = ctx.Pool(workers, _init_worker,
+                                  (policy_name, task.name, task.max_steps, objective))
+
+    def evaluate(self, episodes: Sequence[Episode],
+                 on_done: Callable[[int], None] | None = None) -> list[EpisodeResult]:
+        shards = [list(episodes[i : i + self.shard_size])
+                  for i in range(0, len(episodes), self.shard_size)]
+        if self._pool is None:
+            runs = (rollout(self.policy, self.task, s, self.objective, self._envs) for s in shards)
+        else:
+            runs = self._pool.imap(_run_shard, shards)
+        results: list[EpisodeResult] = []
+        for shard_results in runs:
+            results += shard_results
+            if on_done:
+                on_done(len(shard_results))
+        return results
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool = None
+
+    def __enter__(self) -> Engine:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

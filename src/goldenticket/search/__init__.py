@@ -1,0 +1,35 @@
+"""Black-box search for golden tickets: pure ask/tell optimizers and the budgeted driver."""
+
+from goldenticket.search.driver import (
+    Candidate,
+    EpisodeOutcome,
+    SearchResult,
+    run_search,
+)
+from goldenticket.search.optimizers import (
+    CEM,
+    OPTIMIZERS,
+    CEMRacing,
+    Optimizer,
+    Query,
+    RandomSearch,
+    ZerothOrder,
+    hyper_parameters,
+    make_optimizer,
+)
+
+__all__ = [
+    "CEM",
+    "OPTIMIZERS",
+    "CEMRacing",
+    "Candidate",
+    "EpisodeOutcome",
+    "Optimizer",
+    "Query",
+    "RandomSearch",
+    "SearchResult",
+    "ZerothOrder",
+    "hyper_parameters",
+    "make_optimizer",
+    "run_search",
+]

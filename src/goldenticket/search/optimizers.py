@@ -1,0 +1,270 @@
+"""Ask/tell black-box optimizers over one constant noise ticket (paper appendix "Search Methods").
+
+Every optimizer is pure: it proposes `Query`s and learns from their per-seed returns, with no
+I/O, no environment and no global random state. All randomness and tie-breaking is driven by
+the `rng` it was built with, so the same rng seed and the same returns give the same queries.
+Protocol: call `ask()`, evaluate every query it returned, then `tell()` all of them, in order,
+before asking again.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from goldenticket.errors import UserError
+
+
+@dataclass(frozen=True, eq=False)
+class Query:
+    """Roll `ticket` out once on each of `seeds`. The ticket is stored as a read-only float32 copy."""
+
+    ticket: np.ndarray
+    seeds: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        ticket = np.array(self.ticket, dtype=np.float32)
+        ticket.flags.writeable = False
+        object.__setattr__(self, "ticket", ticket)
+        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+
+
+class Optimizer(Protocol):
+    """What the search driver needs; `seeds` are the search seeds the optimizer rolls out on."""
+
+    seeds: tuple[int, ...]
+
+    def ask(self) -> list[Query]:
+        """Queries to evaluate next; [] means the optimizer is finished."""
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        """Report `returns[i]`, the per-seed returns of `queries[i]`, for the whole last ask."""
+
+
+def _require(ok: bool, message: str) -> None:
+    if not ok:
+        raise UserError(message)
+
+
+def _top_indices(scores: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the k highest scores, best first; ties go to the lower index."""
+    return np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable")[:k]
+
+
+def _check_iterations(iterations: int | None) -> None:
+    _require(iterations is None or iterations >= 1, f"iterations must be >= 1, got {iterations}")
+
+
+class _Base:
+    """Shared constructor checks and query building."""
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator):
+        shape = tuple(int(n) for n in noise_shape)
+        _require(len(shape) == 2 and min(shape) >= 1, f"noise_shape must be (H, A), got {noise_shape}")
+        self.seeds = tuple(int(s) for s in seeds)
+        _require(len(self.seeds) >= 1, "need at least one search seed")
+        _require(len(set(self.seeds)) == len(self.seeds), "search seeds must be distinct")
+        self.noise_shape: tuple[int, int] = shape  # type: ignore[assignment]
+        self.rng = rng
+
+    def _queries(self, tickets, seeds: tuple[int, ...] | None = None) -> list[Query]:
+        return [Query(t, self.seeds if seeds is None else seeds) for t in tickets]
+
+
+class RandomSearch(_Base):
+    """RS (paper Alg. 1): i.i.d. N(0, I) tickets, `batch_size` per ask, each on every search seed.
+
+    Runs until `num_tickets` have been asked for (None: until the driver stops it).
+    """
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
+                 rng: np.random.Generator, *, batch_size: int = 50, num_tickets: int | None = None):
+        super().__init__(noise_shape, seeds, rng)
+        _require(batch_size >= 1, f"batch_size must be >= 1, got {batch_size}")
+        _require(num_tickets is None or num_tickets >= 1, f"num_tickets must be >= 1, got {num_tickets}")
+        self.batch_size, self.num_tickets, self.asked = batch_size, num_tickets, 0
+
+    def ask(self) -> list[Query]:
+        left = self.batch_size if self.num_tickets is None else self.num_tickets - self.asked
+        n = min(self.batch_size, left)
+        self.asked += n
+        return self._queries(self.rng.standard_normal((n, *self.noise_shape)))
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        """RS does not adapt; the driver keeps the scores."""
+
+
+class CEM(_Base):
+    """Cross-entropy method (paper Alg. 2) over a diagonal Gaussian N(mu, sigma^2).
+
+    Each iteration samples `population` tickets, keeps the top max(1, floor(elite_frac * P)) by
+    mean return, and refits mu and sigma to them with smoothing `alpha`; sigma is floored at
+    `sigma_min` and then inflated to sqrt(sigma^2 + sigma_extra^2). Runs `iterations` times
+    (None: until the driver stops it).
+    """
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
+                 rng: np.random.Generator, *, population: int = 50, elite_frac: float = 0.2,
+                 alpha: float = 1.0, sigma_init: float = 1.0, sigma_min: float = 0.01,
+                 sigma_extra: float = 0.0, iterations: int | None = None):
+        super().__init__(noise_shape, seeds, rng)
+        _require(population >= 2, f"population must be >= 2, got {population}")
+        _require(0 < elite_frac <= 1, f"elite_frac must be in (0, 1], got {elite_frac}")
+        _require(0 < alpha <= 1, f"alpha must be in (0, 1], got {alpha}")
+        _require(sigma_init > 0, f"sigma_init must be > 0, got {sigma_init}")
+        _require(sigma_min >= 0 and sigma_extra >= 0, "sigma_min and sigma_extra must be >= 0")
+        _check_iterations(iterations)
+        self.population, self.alpha, self.iterations = population, alpha, iterations
+        self.sigma_min, self.sigma_extra = sigma_min, sigma_extra
+        self.n_elite = max(1, math.floor(elite_frac * population))
+        self.mu = np.zeros(self.noise_shape)
+        self.sigma = np.full(self.noise_shape, float(sigma_init))
+        self.iteration = 0
+
+    def ask(self) -> list[Query]:
+        return [] if self._finished() else self._queries(self._sample())
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        self._refit(np.stack([q.ticket for q in queries]), np.array([np.mean(r) for r in returns]))
+
+    def _finished(self) -> bool:
+        return self.iterations is not None and self.iteration >= self.iterations
+
+    def _sample(self) -> np.ndarray:
+        z = self.rng.standard_normal((self.population, *self.noise_shape))
+        return (self.mu + self.sigma * z).astype(np.float32)
+
+    def _refit(self, tickets: np.ndarray, scores: np.ndarray) -> None:
+        elites = tickets[_top_indices(scores, self.n_elite)].astype(np.float64)
+        a = self.alpha
+        self.mu = a * elites.mean(axis=0) + (1 - a) * self.mu
+        sigma = np.maximum(a * elites.std(axis=0) + (1 - a) * self.sigma, self.sigma_min)
+        self.sigma = np.sqrt(sigma**2 + self.sigma_extra**2)  # no-op when sigma_extra == 0
+        self.iteration += 1
+
+
+class ZerothOrder(_Base):
+    """ZOS (paper Alg. 3): random walk on an L2 sphere of `radius` around a pivot.
+
+    The first ask evaluates the N(0, I) pivot alone. Each later ask proposes `candidates` tickets:
+    the replayed winning step (pivot + d) if the last iteration moved, then random sphere points.
+    The pivot moves to the best candidate if it beats the pivot's score. Runs `iterations`
+    iterations after the pivot (None: until the driver stops it).
+    """
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
+                 rng: np.random.Generator, *, candidates: int = 10, radius: float = 0.5,
+                 iterations: int | None = None):
+        super().__init__(noise_shape, seeds, rng)
+        _require(candidates >= 1, f"candidates must be >= 1, got {candidates}")
+        _require(radius > 0, f"radius must be > 0, got {radius}")
+        _check_iterations(iterations)
+        self.candidates, self.radius, self.iterations = candidates, radius, iterations
+        self.pivot = rng.standard_normal(self.noise_shape).astype(np.float32)
+        self.pivot_score: float | None = None  # None until the pivot itself is evaluated
+        self.step: np.ndarray | None = None
+        self.iteration = 0
+
+    def ask(self) -> list[Query]:
+        if self.pivot_score is None:
+            return self._queries([self.pivot])
+        if self.iterations is not None and self.iteration >= self.iterations:
+            return []
+        tickets = [] if self.step is None else [self.pivot + self.step]
+        while len(tickets) < self.candidates:
+            u = self.rng.standard_normal(self.noise_shape)
+            tickets.append(self.pivot + self.radius * u / np.linalg.norm(u))
+        return self._queries(tickets)
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        scores = [float(np.mean(r)) for r in returns]
+        if self.pivot_score is None:
+            self.pivot_score = scores[0]
+            return
+        best = int(np.argmax(scores))  # ties go to the earlier candidate
+        self.step = None
+        if scores[best] > self.pivot_score:
+            move = queries[best].ticket.astype(np.float64) - self.pivot
+            self.step = self.radius * move / np.linalg.norm(move)
+            self.pivot, self.pivot_score = queries[best].ticket, scores[best]
+        self.iteration += 1
+
+
+class CEMRacing(CEM):
+    """CEM whose population is raced by sequential halving (paper "Sequential Halving").
+
+    The search seeds are split into `tiers` disjoint blocks of M0 = M // tiers seeds (left-over
+    seeds are dropped from `self.seeds`). The first ask of an iteration rolls all P candidates out
+    on block 1, each next ask rolls the survivors out on the next block; after each tier the top
+    half (at least one) by cumulative mean return survives. After the last tier CEM refits on
+    every candidate's cumulative mean. Other keyword arguments are CEM's hyper-parameters.
+    """
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
+                 rng: np.random.Generator, *, tiers: int = 5, **cem_params):
+        seeds = tuple(seeds)
+        _require(tiers >= 1, f"tiers must be >= 1, got {tiers}")
+        _require(len(seeds) >= tiers, f"cem-racing needs at least tiers={tiers} search seeds, "
+                                      f"got {len(seeds)}")
+        m0 = len(seeds) // tiers
+        super().__init__(noise_shape, seeds[: tiers * m0], rng, **cem_params)
+        self.tier_seeds = [self.seeds[t * m0 : (t + 1) * m0] for t in range(tiers)]
+        self.tier = 0
+        self._alive = np.arange(0)  # population indices still racing; empty between iterations
+
+    def ask(self) -> list[Query]:
+        if not len(self._alive):
+            if self._finished():
+                return []
+            self._tickets = self._sample()
+            self._alive = np.arange(self.population)
+            self._sums, self._counts = np.zeros(self.population), np.zeros(self.population)
+        return self._queries(self._tickets[self._alive], self.tier_seeds[self.tier])
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        self._sums[self._alive] += [np.sum(r) for r in returns]
+        self._counts[self._alive] += [len(r) for r in returns]
+        scores = self._sums / self._counts  # every candidate ran tier 1, so counts > 0
+        self.tier += 1
+        if self.tier == len(self.tier_seeds):
+            self._refit(self._tickets, scores)
+            self.tier, self._alive = 0, np.arange(0)
+        else:
+            keep = max(1, len(self._alive) // 2)
+            self._alive = np.sort(self._alive[_top_indices(scores[self._alive], keep)])
+
+
+OPTIMIZERS: dict[str, type] = {
+    "rs": RandomSearch,
+    "cem": CEM,
+    "zos": ZerothOrder,
+    "cem-racing": CEMRacing,
+}
+
+
+def hyper_parameters(method: str) -> list[str]:
+    """Names of the keyword hyper-parameters `make_optimizer` accepts for `method`."""
+    names = set()
+    for klass in OPTIMIZERS[method].__mro__:
+        if "__init__" in vars(klass) and klass is not object:
+            params = inspect.signature(klass.__init__).parameters.values()
+            names |= {p.name for p in params if p.kind is p.KEYWORD_ONLY}
+    return sorted(names)
+
+
+def make_optimizer(method: str, noise_shape: tuple[int, int], seeds: Sequence[int],
+                   rng: np.random.Generator, **overrides) -> Optimizer:
+    """Build the optimizer named `method` with the paper's defaults, changed by `overrides`."""
+    if method not in OPTIMIZERS:
+        raise UserError(f"unknown search method {method!r}; choose one of: {', '.join(OPTIMIZERS)}")
+    valid = hyper_parameters(method)
+    unknown = sorted(set(overrides) - set(valid))
+    if unknown:
+        raise UserError(f"unknown hyper-parameter {', '.join(unknown)} for {method}; "
+                        f"valid: {', '.join(valid)}")
+    return OPTIMIZERS[method](noise_shape, seeds, rng, **overrides)

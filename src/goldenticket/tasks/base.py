@@ -1,0 +1,66 @@
+"""Task contract, seed sets and objectives."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+from goldenticket.errors import UserError
+
+# Disjoint by construction: a seed names one initial state and belongs to exactly one set.
+SEED_SETS: dict[str, range] = {
+    "search": range(0, 1_000_000),
+    "heldout": range(1_000_000, 2_000_000),
+    "train": range(2_000_000, 3_000_000),
+}
+
+
+def seeds_in(seed_set: str, n: int, offset: int = 0) -> list[int]:
+    """The first `n` seeds of a seed set, after skipping `offset` of them."""
+    if seed_set not in SEED_SETS:
+        raise UserError(f"unknown seed set {seed_set!r}; choose from {sorted(SEED_SETS)}")
+    block = SEED_SETS[seed_set]
+    if n < 0 or offset < 0 or offset + n > len(block):
+        raise UserError(f"seed set {seed_set!r} has {len(block)} seeds; asked for {offset}+{n}")
+    return list(block[offset : offset + n])
+
+
+def seed_set_of(seed: int) -> str:
+    """Name of the set a seed belongs to."""
+    for name, block in SEED_SETS.items():
+        if seed in block:
+            return name
+    raise UserError(f"seed {seed} is outside every seed set")
+
+
+def _discounted(success: bool, length: int, max_steps: int, gamma: float = 0.99) -> float:
+    return float(success) * gamma ** (length - 1)
+
+
+# Episode return from (success, length, max_steps); higher is better for every objective.
+OBJECTIVES: dict[str, Callable[[bool, int, int], float]] = {
+    "success": lambda success, length, max_steps: float(success),
+    "discounted-success": _discounted,
+    "length": lambda success, length, max_steps: -length / max_steps,
+}
+
+
+class Env(Protocol):
+    """One environment instance whose initial state is a function of an integer seed."""
+
+    def reset(self, seed: int) -> np.ndarray: ...
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool]:
+        """Apply one action; returns (observation, reward, success)."""
+        ...
+
+
+class Task(Protocol):
+    name: str
+    obs_dim: int
+    action_dim: int
+    max_steps: int
+
+    def make_env(self) -> Env: ...

@@ -1,0 +1,87 @@
+"""Meta-World v3 tasks with initial states controlled by the seed, not by the env's history."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+
+from goldenticket.errors import UserError
+
+
+def _quiet() -> None:
+    """Silence the known gymnasium / Meta-World warnings so users see our output."""
+    warnings.filterwarnings("ignore", module=r"gymnasium(\.|$)")
+    warnings.filterwarnings("ignore", module=r"metaworld(\.|$)")
+    warnings.filterwarnings("ignore", message=r".*(obs|observation)[ _]space.*")
+
+
+@cache
+def _env_classes() -> dict:
+    _quiet()
+    from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+
+    return dict(ALL_V3_ENVIRONMENTS)
+
+
+def task_names() -> list[str]:
+    return sorted(f"metaworld/{name}" for name in _env_classes())
+
+
+class MetaWorldEnv:
+    """A goal-observable Meta-World env whose reset(seed) fixes object and goal positions.
+
+    Meta-World draws initial positions from `np_random` in `_get_state_rand_vec` (with its own
+    rejection loops for some tasks); we reseed that generator from the integer seed at every
+    reset, and `MujocoEnv.reset` restores the simulator state, so history does not leak in.
+    """
+
+    def __init__(self, env_name: str):
+        _quiet()
+        self._env = _env_classes()[env_name]()
+        env = self._env
+        env._partially_observable = False  # the goal is part of the observation
+        env.__dict__.pop("sawyer_observation_space", None)  # cached property: recompute
+        env._set_task_called = True
+        env._freeze_rand_vec = False
+        env.seeded_rand_vec = True
+
+    def reset(self, seed: int) -> np.ndarray:
+        self._env.np_random = np.random.Generator(np.random.PCG64(seed))
+        with warnings.catch_warnings():
+            _quiet()
+            obs, _ = self._env.reset()
+        return obs.astype(np.float32)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool]:
+        with warnings.catch_warnings():
+            _quiet()
+            obs, reward, _, _, info = self._env.step(np.asarray(action, dtype=np.float64))
+        return obs.astype(np.float32), float(reward), bool(info["success"])
+
+
+@dataclass(frozen=True)
+class MetaWorldTask:
+    """A Meta-World v3 task, e.g. `metaworld/pick-place-v3`; episodes end at success."""
+
+    name: str
+    max_steps: int = 150
+    obs_dim: int = 39
+    action_dim: int = 4
+
+    @property
+    def env_name(self) -> str:
+        return self.name.split("/", 1)[1]
+
+    def make_env(self) -> MetaWorldEnv:
+        return MetaWorldEnv(self.env_name)
+
+
+def get_task(name: str, max_steps: int | None = None) -> MetaWorldTask:
+    """Look up a task by name; unknown names are a UserError listing a few valid ones."""
+    if name not in task_names():
+        hint = ", ".join(n for n in task_names() if "pick" in n or "reach" in n)
+        raise UserError(f"unknown task {name!r}; tasks look like: {hint}")
+    return MetaWorldTask(name) if max_steps is None else MetaWorldTask(name, max_steps)

@@ -1,0 +1,103 @@
+"""A golden ticket: one constant (H, A) float32 noise array, saved as one .safetensors file."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from safetensors import SafetensorError, safe_open
+from safetensors.numpy import save_file
+
+from goldenticket.errors import UserError
+
+_TENSOR = "noise"
+_META_KEY = "goldenticket"
+
+
+def _checked_noise(noise: Any, where: str) -> np.ndarray:
+    """Return noise as a C-contiguous float32 copy, or raise UserError naming `where`."""
+    arr = np.array(noise, dtype=np.float32, order="C")
+    if arr.ndim != 2:
+        raise UserError(f"{where}: noise must be 2-D (horizon, action_dim), got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise UserError(f"{where}: noise contains NaN or inf")
+    return arr
+
+
+def _jsonable(value: Any) -> Any:
+    """json.dumps fallback for numpy scalars and arrays."""
+    if isinstance(value, np.generic | np.ndarray):
+        return value.tolist()
+    raise TypeError(f"ticket metadata value of type {type(value).__name__} is not JSON-able")
+
+
+@dataclass(eq=False)  # numpy arrays have no boolean ==; compare .id instead
+class Ticket:
+    """Constant noise fed to a frozen policy in place of fresh Gaussian noise, plus metadata."""
+
+    noise: np.ndarray
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.noise = _checked_noise(self.noise, "ticket")
+
+    @property
+    def id(self) -> str:
+        """12 hex chars of sha256 over the shape and the float32 C-contiguous noise bytes."""
+        noise = np.ascontiguousarray(self.noise, dtype=np.float32)
+        digest = hashlib.sha256(repr(tuple(noise.shape)).encode())
+        digest.update(noise.tobytes())
+        return digest.hexdigest()[:12]
+
+    def save(self, path: str | Path) -> Path:
+        """Write one .safetensors file: tensor "noise" plus metadata as JSON in the header."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        meta = json.dumps(self.metadata, sort_keys=True, default=_jsonable)
+        noise = _checked_noise(self.noise, str(path))
+        save_file({_TENSOR: noise}, str(path), metadata={_META_KEY: meta})
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, expected_shape: tuple[int, ...] | None = None) -> Ticket:
+        """Read a ticket written by save(); every problem is a one-line UserError."""
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"{path}: ticket file not found")
+        try:
+            with safe_open(str(path), framework="numpy") as f:
+                names = f.keys()
+                if _TENSOR not in names:
+                    raise UserError(f"{path}: no 'noise' tensor (found {sorted(names)})")
+                dtype = f.get_slice(_TENSOR).get_dtype()
+                if dtype != "F32":
+                    raise UserError(f"{path}: noise dtype must be float32 (F32), got {dtype}")
+                noise = f.get_tensor(_TENSOR)
+                header = f.metadata() or {}
+        except SafetensorError as e:
+            raise UserError(f"{path}: not a valid safetensors file ({e})") from None
+        if expected_shape is not None and tuple(noise.shape) != tuple(expected_shape):
+            raise UserError(
+                f"{path}: noise shape {tuple(noise.shape)} does not match the policy's "
+                f"expected shape {tuple(expected_shape)}"
+            )
+        return cls(_checked_noise(noise, str(path)), _parse_metadata(header, path))
+
+
+def _parse_metadata(header: dict[str, str], path: Path) -> dict:
+    try:
+        metadata = json.loads(header.get(_META_KEY, "{}"))
+    except json.JSONDecodeError as e:
+        raise UserError(f"{path}: ticket metadata is not valid JSON ({e})") from None
+    if not isinstance(metadata, dict):
+        raise UserError(f"{path}: ticket metadata must be a JSON object")
+    return metadata
+
+
+def zero_ticket(shape: tuple[int, int]) -> Ticket:
+    """The all-zeros ticket: the mean of the Gaussian prior, a natural baseline."""
+    return Ticket(np.zeros(shape, dtype=np.float32), {"method": "zero"})

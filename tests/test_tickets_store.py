@@ -1,0 +1,188 @@
+import sqlite3
+
+import numpy as np
+import pytest
+from safetensors.numpy import save_file
+
+from goldenticket.errors import UserError
+from goldenticket.store import EpisodeRow, RunStore
+from goldenticket.tickets import Ticket, zero_ticket
+
+
+def noise(seed=0, shape=(16, 4)):
+    return np.random.default_rng(seed).standard_normal(shape).astype(np.float32)
+
+
+def load_error(path, **kwargs) -> str:
+    with pytest.raises(UserError) as info:
+        Ticket.load(path, **kwargs)
+    message = str(info.value)
+    assert "\n" not in message and str(path) in message
+    return message
+
+
+# --- tickets ---------------------------------------------------------------------------------
+
+
+def test_ticket_round_trip(tmp_path):
+    meta = {"policy": "dp-pusht", "method": "cmaes", "budget": 200, "score": np.float32(0.75)}
+    ticket = Ticket(noise(), meta)
+    path = ticket.save(tmp_path / "sub" / "t.safetensors")
+    loaded = Ticket.load(path, expected_shape=(16, 4))
+    assert loaded.noise.dtype == np.float32
+    np.testing.assert_array_equal(loaded.noise, ticket.noise)
+    assert loaded.metadata == {**meta, "score": 0.75}
+    assert type(loaded.metadata["score"]) is float
+    assert loaded.id == ticket.id
+
+
+def test_ticket_id_stable_and_distinct():
+    a = noise(0)
+    assert Ticket(a, {}).id == Ticket(a.copy(), {"other": 1}).id
+    assert Ticket(a.astype(np.float64), {}).id == Ticket(a, {}).id
+    assert len(Ticket(a, {}).id) == 12 and int(Ticket(a, {}).id, 16) >= 0
+    assert Ticket(noise(1), {}).id != Ticket(a, {}).id
+    assert zero_ticket((2, 3)).id != zero_ticket((3, 2)).id  # same bytes, different shape
+
+
+def test_zero_ticket():
+    ticket = zero_ticket((8, 2))
+    assert ticket.noise.shape == (8, 2) and ticket.noise.dtype == np.float32
+    assert not ticket.noise.any()
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [(np.full((4, 2), np.nan), "NaN"), (np.full((4, 2), np.inf), "inf"), (np.zeros(8), "2-D")],
+)
+def test_ticket_constructor_validates(bad, match):
+    with pytest.raises(UserError, match=match):
+        Ticket(bad, {})
+
+
+def test_load_missing_file(tmp_path):
+    assert "not found" in load_error(tmp_path / "nope.safetensors")
+
+
+def test_load_truncated_and_junk(tmp_path):
+    path = Ticket(noise(), {"a": 1}).save(tmp_path / "t.safetensors")
+    path.write_bytes(path.read_bytes()[:-10])
+    assert "not a valid safetensors" in load_error(path)
+    path.write_bytes(b"definitely not safetensors")
+    assert "not a valid safetensors" in load_error(path)
+
+
+def test_load_without_noise_tensor(tmp_path):
+    path = tmp_path / "t.safetensors"
+    save_file({"weights": noise()}, str(path))
+    assert "no 'noise' tensor" in load_error(path)
+
+
+def test_load_wrong_dtype(tmp_path):
+    path = tmp_path / "t.safetensors"
+    save_file({"noise": noise().astype(np.float64)}, str(path))
+    assert "F64" in load_error(path)
+
+
+def test_load_nan(tmp_path):
+    path = tmp_path / "t.safetensors"
+    bad = noise()
+    bad[3, 1] = np.nan
+    save_file({"noise": bad}, str(path))
+    assert "NaN" in load_error(path)
+
+
+def test_load_wrong_shape(tmp_path):
+    path = Ticket(noise(), {}).save(tmp_path / "t.safetensors")
+    message = load_error(path, expected_shape=(8, 4))
+    assert "(16, 4)" in message and "(8, 4)" in message
+    save_file({"noise": np.zeros(5, np.float32)}, str(path))
+    assert "2-D" in load_error(path)
+
+
+def test_load_bad_metadata(tmp_path):
+    path = tmp_path / "t.safetensors"
+    save_file({"noise": noise()}, str(path), metadata={"goldenticket": "{oops"})
+    assert "JSON" in load_error(path)
+
+
+# --- run store -------------------------------------------------------------------------------
+
+
+def row(seed, success=True, ticket_id="abc123abc123", task="push", seed_set="search"):
+    return EpisodeRow(ticket_id, task, seed, seed_set, success, 1.5 * seed, 100 + seed, 0.25)
+
+
+def test_store_resume(tmp_path):
+    path = tmp_path / "run.sqlite"
+    with RunStore(path) as store:
+        assert store.get_config() is None
+        store.set_config({"policy": "dp", "budget": 10})
+        store.record([row(s) for s in range(3)])
+        store.record([row(0, ticket_id="base", seed_set="heldout")])
+    with RunStore(path) as store:
+        assert store.get_config() == {"policy": "dp", "budget": 10}
+        done = store.done("abc123abc123", "search")
+        assert done == {s: row(s) for s in range(3)}
+        assert store.done("abc123abc123", "heldout") == {}
+        assert store.done("base", "heldout") == {0: row(0, ticket_id="base", seed_set="heldout")}
+
+
+def test_store_replaces_same_episode(tmp_path):
+    store = RunStore(tmp_path / "run.sqlite")
+    store.record([row(1, success=True), row(2)])
+    store.record([row(1, success=False)])
+    assert store.episodes() == [row(1, success=False), row(2)]
+    store.record([row(1, task="reach")])  # different task: a different episode
+    assert len(store.episodes()) == 3
+
+
+def test_store_filters_and_tasks(tmp_path):
+    store = RunStore(tmp_path / "run.sqlite")
+    store.record([row(0), row(0, task="reach"), row(1, ticket_id="zero", seed_set="heldout")])
+    assert store.episodes(ticket_id="zero") == [row(1, ticket_id="zero", seed_set="heldout")]
+    assert store.episodes(seed_set="search", task="reach") == [row(0, task="reach")]
+    assert store.done("abc123abc123", "search", task="push") == {0: row(0)}
+    with pytest.raises(ValueError, match="task="):
+        store.done("abc123abc123", "search")
+
+
+def test_store_accepts_numpy_scalars(tmp_path):
+    store = RunStore(tmp_path / "run.sqlite")
+    r = EpisodeRow("base", "push", np.int64(4), "heldout", np.bool_(True), np.float32(2.5), 7, 0.1)
+    store.record([r])
+    (got,) = store.episodes()
+    assert (got.seed, got.success, got.ret) == (4, True, 2.5)
+    assert type(got.seed) is int and type(got.success) is bool
+
+
+def test_store_record_is_one_transaction(tmp_path):
+    store = RunStore(tmp_path / "run.sqlite")
+    bad = EpisodeRow("base", "push", 1, "search", True, "not a number", 1, 0.0)
+    with pytest.raises(ValueError):
+        store.record([row(0), bad])
+    assert store.episodes() == []
+
+
+def test_store_checkpoints(tmp_path):
+    path = tmp_path / "run.sqlite"
+    with RunStore(path) as store:
+        assert store.load_checkpoint("cmaes") is None
+        store.save_checkpoint("cmaes", b"\x00state-1")
+        store.save_checkpoint("cmaes", b"\x00state-2")
+    with RunStore(path) as store:
+        assert store.load_checkpoint("cmaes") == b"\x00state-2"
+
+
+def test_store_rejects_corrupt_and_foreign_files(tmp_path):
+    junk = tmp_path / "junk.sqlite"
+    junk.write_bytes(b"this is not a database" * 100)
+    foreign = tmp_path / "foreign.sqlite"
+    con = sqlite3.connect(foreign)
+    con.execute("CREATE TABLE things (x)")
+    con.commit()
+    con.close()
+    for path in (junk, foreign, tmp_path):
+        with pytest.raises(UserError) as info:
+            RunStore(path)
+        assert "\n" not in str(info.value) and str(path) in str(info.value)
