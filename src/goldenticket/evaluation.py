@@ -1,0 +1,79 @@
+"""Recorded, resumable evaluation, and the held-out verdict: is a ticket golden?"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from goldenticket.noise import Gaussian, NoiseSource
+from goldenticket.rollout import Engine, Episode, EpisodeResult
+from goldenticket.stats import Rate, paired_exact_test
+from goldenticket.store import EpisodeRow, RunStore
+from goldenticket.tasks.base import seed_set_of
+
+ALPHA = 0.05
+Job = tuple[str, NoiseSource, Sequence[int]]  # (label, noise source, seeds)
+
+
+class Evaluator:
+    """Runs (label, noise source, seeds) through the engine, recording every episode.
+
+    Episodes already in the store are read back, not re-run, so a killed run resumes where it
+    stopped. The label identifies the noise source: "base", "zero", or a ticket id.
+    """
+
+    def __init__(self, engine: Engine, store: RunStore | None = None,
+                 on_done: Callable[[int], None] | None = None):
+        self.engine, self.store, self.on_done = engine, store, on_done
+
+    def run(self, jobs: Sequence[Job]) -> list[list[EpisodeResult]]:
+        """Results per job, in seed order; new episodes of all jobs run in one engine call."""
+        task = self.engine.task.name
+        known = {}
+        for label in {label for label, _, _ in jobs} if self.store is not None else ():
+            for row in self.store.episodes(ticket_id=label, task=task):
+                known[label, row.seed] = EpisodeResult(row.seed, row.success, row.ret, row.length,
+                                                       row.wall_time)
+        todo = [(label, Episode(source, seed)) for label, source, seeds in jobs for seed in seeds
+                if (label, seed) not in known]
+        fresh = self.engine.evaluate([ep for _, ep in todo], self.on_done)
+        for (label, _), result in zip(todo, fresh, strict=True):
+            known[label, result.seed] = result
+        if self.store is not None:
+            self.store.record(EpisodeRow(label, task, r.seed, seed_set_of(r.seed), r.success,
+                                         r.ret, r.length, r.wall_time)
+                              for (label, _), r in zip(todo, fresh, strict=True))
+        return [[known[label, s] for s in seeds] for label, _, seeds in jobs]
+
+
+@dataclass
+class Judged:
+    """One noise source's held-out outcome, with its test against the base policy."""
+
+    label: str
+    rate: Rate
+    successes: list[bool] = field(repr=False)
+    p_value: float | None = None  # one-sided exact paired test vs base; None for the base
+
+    @property
+    def golden(self) -> bool:
+        return self.p_value is not None and self.p_value < ALPHA
+
+    def to_dict(self) -> dict:
+        out = self.rate.to_dict()
+        if self.p_value is not None:
+            out |= {"p_value": self.p_value, "verdict": "golden" if self.golden else "not golden"}
+        return out
+
+
+def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence[int],
+          base: NoiseSource | None = None) -> dict[str, Judged]:
+    """The base policy and each source on the same held-out seeds, each tested against base."""
+    jobs = [("base", base or Gaussian(), seeds)] + [(k, s, seeds) for k, s in sources.items()]
+    outcomes = evaluator.run(jobs)
+    base_succ = [r.success for r in outcomes[0]]
+    judged = {"base": Judged("base", Rate.of(base_succ), base_succ)}
+    for (label, _, _), results in zip(jobs[1:], outcomes[1:], strict=True):
+        succ = [r.success for r in results]
+        judged[label] = Judged(label, Rate.of(succ), succ, paired_exact_test(succ, base_succ))
+    return judged

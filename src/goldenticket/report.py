@@ -1,0 +1,30 @@
+"""Plain-text tables for people."""
+
+from __future__ import annotations
+
+
+def verdict_table(rows: dict[str, dict]) -> str:
+    """One line per noise source: success rate, 95% Wilson interval, p vs base, verdict."""
+    lines = [f"{'noise':<14} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10}  verdict"]
+    for label, r in rows.items():
+        p = f"{r['p_value']:.3g}" if "p_value" in r else "-"
+        lines.append(f"{label:<14} {r['success_rate']:>8.1%} "
+                     f"{'[' + format(r['ci_low'], '.1%') + ', ' + format(r['ci_high'], '.1%') + ']':>16}"
+                     f" {r['n']:>5} {p:>10}  {r.get('verdict', '')}")
+    return "\n".join(lines)
+
+
+def summary_text(summary: dict) -> str:
+    """The demo/search table plus a one-line plain verdict."""
+    rows = {"base": summary["base"], "zero ticket": summary["zero"]}
+    rows |= {f"ticket {t['ticket_id']}": t for t in summary["tickets"]}
+    golden = summary["golden"]
+    if golden["verdict"] == "golden":
+        line = (f"Golden ticket {golden['ticket_id']}: {golden['success_rate']:.1%} vs base "
+                f"{summary['base']['success_rate']:.1%} on {golden['n']} held-out seeds "
+                f"(p = {golden['p_value']:.3g}); saved to {golden['ticket_path']}")
+    else:
+        line = (f"No golden ticket: the best ticket ({golden['ticket_id']}, "
+                f"{golden['success_rate']:.1%}) is not significantly better than the base "
+                f"({summary['base']['success_rate']:.1%}); p = {golden['p_value']:.3g} >= 0.05")
+    return f"{verdict_table(rows)}\n\n{line}\n{summary['p_value_note']}."

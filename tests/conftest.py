@@ -1,0 +1,24 @@
+import numpy as np
+import pytest
+import torch
+
+from goldenticket.policies import MLPPolicy, PolicyConfig
+
+
+@pytest.fixture(scope="session")
+def tiny_policies(tmp_path_factory) -> dict[str, MLPPolicy]:
+    """Untrained but fixed flow and DDIM policies for pick-place (weights from a seed)."""
+    out = {}
+    for kind in ("flow", "ddim"):
+        torch.manual_seed(0)
+        cfg = PolicyConfig(f"test/{kind}", kind, obs_dim=39, action_dim=4, hidden=32, layers=2,
+                           steps=3)
+        policy = MLPPolicy(cfg)
+        policy.save(tmp_path_factory.mktemp(kind))
+        out[kind] = policy
+    return out
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(0)

@@ -1,0 +1,58 @@
+import multiprocessing as mp
+
+import numpy as np
+import pytest
+
+from goldenticket.errors import UserError
+from goldenticket.tasks import SEED_SETS, get_task, seeds_in
+from goldenticket.tasks.base import seed_set_of
+
+TASK = "metaworld/pick-place-v3"
+
+
+def _first_obs_and_episode(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    env = get_task(TASK).make_env()
+    env.reset(seed + 1)  # a different history first: it must not leak into the next reset
+    for _ in range(5):
+        env.step(np.ones(4))
+    first = env.reset(seed)
+    actions = np.random.default_rng(7).uniform(-1, 1, (20, 4))
+    trajectory = np.stack([env.step(a)[0] for a in actions])
+    return first, trajectory
+
+
+def test_same_seed_same_initial_state_and_episode_in_two_envs():
+    a_first, a_traj = _first_obs_and_episode(3)
+    env = get_task(TASK).make_env()  # fresh env, no history
+    b_first = env.reset(3)
+    assert np.array_equal(a_first, b_first)
+    assert np.array_equal(a_first, _first_obs_and_episode(3)[0])
+    assert np.array_equal(a_traj, _first_obs_and_episode(3)[1])
+
+
+def test_different_seeds_give_different_initial_states():
+    env = get_task(TASK).make_env()
+    firsts = {env.reset(s)[4:7].tobytes() for s in range(5)}  # object position
+    assert len(firsts) == 5
+
+
+def test_same_seed_same_episode_in_two_processes():
+    here = _first_obs_and_episode(11)
+    with mp.get_context("spawn").Pool(1) as pool:
+        there = pool.apply(_first_obs_and_episode, (11,))
+    assert np.array_equal(here[0], there[0]) and np.array_equal(here[1], there[1])
+
+
+def test_seed_sets_are_disjoint():
+    blocks = list(SEED_SETS.values())
+    for i, a in enumerate(blocks):
+        for b in blocks[i + 1:]:
+            assert a.stop <= b.start or b.stop <= a.start
+    assert seed_set_of(seeds_in("heldout", 1)[0]) == "heldout"
+
+
+def test_bad_task_and_seed_requests_are_user_errors():
+    with pytest.raises(UserError, match="unknown task"):
+        get_task("metaworld/no-such-task")
+    with pytest.raises(UserError):
+        seeds_in("search", 2_000_000)
