@@ -86,7 +86,12 @@ def chunk_dataset(demos: Demos, horizon: int) -> tuple[np.ndarray, np.ndarray]:
 
 def train_policy(cfg: PolicyConfig, demos: Demos, *, steps: int = 20_000, batch: int = 256,
                  lr: float = 1e-3, seed: int = 0) -> tuple[MLPPolicy, list[float]]:
-    """Train a denoiser on demo chunks; deterministic for a seed. Returns policy and loss curve."""
+    """Train a denoiser on demo chunks; deterministic for a seed. Returns policy and loss curve.
+
+    Runs on one thread: the thread count changes floating-point reduction order, so it is part
+    of what makes training reproducible.
+    """
+    torch.set_num_threads(1)
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
     obs_np, act_np = chunk_dataset(demos, cfg.horizon)
@@ -176,7 +181,8 @@ def model_card(card: dict, cfg: PolicyConfig) -> str:
   - base policy (fresh Gaussian noise at every call): {rate(card['base'])}
   - zero ticket (w = 0): {rate(card['zero'])}
 
-Rebuild: `goldenticket train --task {card['policy'].rsplit('/', 1)[0]} --kind {cfg.kind} --demos {card['demos']} \\
+Rebuild: `goldenticket train --task {card['policy'].rsplit('/', 1)[0]} --kind {cfg.kind} \\
+--demos {card['demos']} \\
 --grasp-offset {card['style']['grasp_offset']} --action-noise {card['style']['action_noise']} \\
 --steps {card['train_steps']} --seed {card['seed']} --out DIR`
 """

@@ -93,11 +93,10 @@ def run_search(optimizer: Optimizer, evaluate: Callable[[list[Query]], list[Epis
             on_batch(sum(len(q.seeds) for q in batch))
         if cut is None:
             optimizer.tell(batch, [np.asarray(o.returns, dtype=np.float64) for o in outcomes])
-        if stop_after_perfect is not None:
-            if _count_perfect(found, optimizer.seeds, perfect_return) >= stop_after_perfect:
-                cut = "k perfect tickets"
-        if cut is not None:
-            return SearchResult(list(found.values()), used, cut)
+        perfect = stop_after_perfect is not None and \
+            _count_perfect(found, optimizer.seeds, perfect_return) >= stop_after_perfect
+        if perfect or cut is not None:
+            return SearchResult(list(found.values()), used, "k perfect tickets" if perfect else cut)
 
 
 def _check_limits(budget: int, max_tickets: int | None, stop_after_perfect: int | None) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import inspect
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -64,15 +64,16 @@ class _Base:
     """Shared constructor checks and query building."""
 
     def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator):
-        shape = tuple(int(n) for n in noise_shape)
-        _require(len(shape) == 2 and min(shape) >= 1, f"noise_shape must be (H, A), got {noise_shape}")
+        _require(len(noise_shape) == 2 and min(noise_shape) >= 1,
+                 f"noise_shape must be (H, A) with H, A >= 1, got {noise_shape}")
+        self.noise_shape = (int(noise_shape[0]), int(noise_shape[1]))
         self.seeds = tuple(int(s) for s in seeds)
         _require(len(self.seeds) >= 1, "need at least one search seed")
         _require(len(set(self.seeds)) == len(self.seeds), "search seeds must be distinct")
-        self.noise_shape: tuple[int, int] = shape  # type: ignore[assignment]
         self.rng = rng
 
-    def _queries(self, tickets, seeds: tuple[int, ...] | None = None) -> list[Query]:
+    def _queries(self, tickets: Iterable[np.ndarray],
+                 seeds: tuple[int, ...] | None = None) -> list[Query]:
         return [Query(t, self.seeds if seeds is None else seeds) for t in tickets]
 
 

@@ -1,0 +1,67 @@
+"""Engine env steps/s against the raw stock-env step rate, measured in the same run.
+
+Raw: one stock Meta-World env stepped with random actions, no policy, no bookkeeping.
+Engine: the bundled policy's episodes through `Engine` (policy calls, noise, resets included),
+in-process and with a worker pool. Prints each rate and its ratio to the raw rate.
+
+    python benchmarks/engine_throughput.py [--episodes 200] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import numpy as np
+
+from goldenticket.noise import Gaussian
+from goldenticket.rollout import Engine, Episode
+from goldenticket.tasks import get_task, seeds_in
+
+POLICY, TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
+
+
+def raw_steps_per_second(steps: int = 5000) -> float:
+    """A stock env (constructed as Meta-World ships it), random actions, reset on truncation."""
+    warnings.filterwarnings("ignore")
+    import gymnasium as gym
+    import metaworld  # noqa: F401  (registers the envs)
+
+    env = gym.make("Meta-World/MT1", env_name=TASK.split("/")[1], seed=0)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, 4))
+    start = time.perf_counter()
+    for action in actions:
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset()
+    return steps / (time.perf_counter() - start)
+
+
+def engine_steps_per_second(episodes: int, workers: int) -> float:
+    task = get_task(TASK)
+    batch = [Episode(Gaussian(0), s) for s in seeds_in("search", episodes)]
+    with Engine(POLICY, task, workers=workers) as engine:
+        engine.evaluate(batch[: 2 * workers])  # warm-up: build envs, load the policy
+        start = time.perf_counter()
+        results = engine.evaluate(batch)
+        elapsed = time.perf_counter() - start
+    return sum(r.length for r in results) / elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    raw = raw_steps_per_second()
+    print(f"raw stock env, 1 process:        {raw:8.0f} steps/s  (ratio 1.00)")
+    for workers in sorted({1, args.workers}):
+        rate = engine_steps_per_second(args.episodes, workers)
+        print(f"engine, {workers} worker(s), {args.episodes} episodes: {rate:8.0f} steps/s  "
+              f"(ratio {rate / raw:.2f})")
+
+
+if __name__ == "__main__":
+    main()
