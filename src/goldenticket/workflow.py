@@ -64,7 +64,9 @@ def find_golden_tickets(cfg: SearchConfig, out: Path, say: Callable[[str], None]
             result = run_search(optimizer, _query_evaluator(evaluator), budget=cfg.budget,
                                 stop_after_perfect=cfg.stop_after_perfect)
             bar.total = result.episodes_used
-        top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds))
+        top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds)) or result.top(cfg.top_k)
+        if not top:
+            raise UserError(f"--budget {cfg.budget} is too small to evaluate a single ticket")
         tickets = [_ticket(c.ticket, cfg, policy, result, c) for c in top]
         with _progress(evaluator, cfg.heldout * len(tickets), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
