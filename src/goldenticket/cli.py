@@ -49,6 +49,9 @@ def _parser() -> argparse.ArgumentParser:
     search.add_argument("--search-seeds", type=int, default=20, help="search initial states")
     search.add_argument("--heldout", type=int, default=200, help="held-out initial states")
     search.add_argument("--top-k", type=int, default=5, help="tickets judged on held-out states")
+    search.add_argument("--max-tickets", type=int, default=None, help="cap on distinct tickets")
+    search.add_argument("--stop-after-perfect", type=int, default=3,
+                        help="stop once this many tickets succeed on every search seed (0: never)")
     search.add_argument("--objective", default="success",
                         choices=["success", "discounted-success", "length"])
     _search_args(search)
@@ -105,7 +108,7 @@ def _search(args) -> int:
 
     cfg = SearchConfig(args.policy, args.task, args.method, args.budget, args.seed,
                        args.search_seeds, args.heldout, args.top_k, args.objective,
-                       workers=args.workers)
+                       args.stop_after_perfect or None, args.max_tickets, args.workers)
     return _run_search(cfg, args.out)
 
 

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 def verdict_table(rows: dict[str, dict]) -> str:
     """One line per noise source: success rate, 95% Wilson interval, p vs base, verdict."""
-    lines = [f"{'noise':<14} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10}  verdict"]
+    width = max(len(label) for label in rows)
+    lines = [f"{'noise':<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10}  verdict"]
     for label, r in rows.items():
         p = f"{r['p_value']:.3g}" if "p_value" in r else "-"
-        lines.append(f"{label:<14} {r['success_rate']:>8.1%} "
-                     f"{'[' + format(r['ci_low'], '.1%') + ', ' + format(r['ci_high'], '.1%') + ']':>16}"
-                     f" {r['n']:>5} {p:>10}  {r.get('verdict', '')}")
+        ci = f"[{r['ci_low']:.1%}, {r['ci_high']:.1%}]"
+        lines.append(f"{label:<{width}} {r['success_rate']:>8.1%} {ci:>16} {r['n']:>5} {p:>10}  "
+                     f"{r.get('verdict', '')}".rstrip())
     return "\n".join(lines)
 
 

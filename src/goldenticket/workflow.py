@@ -36,11 +36,12 @@ class SearchConfig:
     top_k: int = 5
     objective: str = "success"
     stop_after_perfect: int | None = 3
+    max_tickets: int | None = None
     workers: int = 2
 
     def check(self) -> None:
-        for name in ("budget", "search_seeds", "heldout", "top_k", "workers"):
-            if getattr(self, name) <= 0:
+        for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets"):
+            if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise UserError(f"--{name.replace('_', '-')} must be > 0, got {getattr(self, name)}")
         if self.objective not in OBJECTIVES:
             raise UserError(f"unknown objective {self.objective!r}; choose from {list(OBJECTIVES)}")
@@ -62,7 +63,8 @@ def find_golden_tickets(cfg: SearchConfig, out: Path, say: Callable[[str], None]
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
         with _progress(evaluator, cfg.budget, f"search ({cfg.method})") as bar:
             result = run_search(optimizer, _query_evaluator(evaluator), budget=cfg.budget,
-                                stop_after_perfect=cfg.stop_after_perfect)
+                                stop_after_perfect=cfg.stop_after_perfect,
+                                max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
         top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds)) or result.top(cfg.top_k)
         if not top:

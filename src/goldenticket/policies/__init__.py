@@ -1,8 +1,8 @@
 """Noise-injectable policies and the bundled policy zoo."""
 
-from goldenticket.policies.base import NoisePolicy
+from goldenticket.policies.base import NoisePolicy, TicketedPolicy
 from goldenticket.policies.mlp import MLPPolicy, PolicyConfig
 from goldenticket.policies.registry import BUNDLED_DIR, load_policy, policy_names
 
 __all__ = ["BUNDLED_DIR", "MLPPolicy", "NoisePolicy", "PolicyConfig", "load_policy",
-           "policy_names"]
+           "policy_names", "TicketedPolicy"]

@@ -21,3 +21,16 @@ class NoisePolicy(Protocol):
     def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
         """obs [B, obs_dim] float32, noise [B, H, A] float32 -> actions [B, n_exec, A]."""
         ...
+
+
+class TicketedPolicy:
+    """Deployment: a NoisePolicy that always uses one ticket; `act(obs)` needs no noise."""
+
+    def __init__(self, policy: NoisePolicy, noise: np.ndarray):
+        if tuple(noise.shape) != tuple(policy.noise_shape):
+            raise ValueError(f"ticket shape {noise.shape} != policy noise shape {policy.noise_shape}")
+        self.policy, self.noise = policy, np.asarray(noise, dtype=np.float32)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """obs [B, obs_dim] -> actions [B, n_exec, A], the ticket broadcast over the batch."""
+        return self.policy.act(obs, np.broadcast_to(self.noise, (len(obs), *self.noise.shape)))

@@ -91,7 +91,7 @@ class MLPPolicy:
     @torch.no_grad()
     def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
         obs_n = self.model.normalise_obs(torch.as_tensor(obs, dtype=torch.float32))
-        x = torch.as_tensor(noise, dtype=torch.float32)
+        x = torch.tensor(noise, dtype=torch.float32)  # a copy: tickets may be read-only views
         x = self._flow(obs_n, x) if self.cfg.kind == "flow" else self._ddim(obs_n, x)
         return self.model.denormalise_actions(x)[:, : self.cfg.n_exec].numpy()
 
