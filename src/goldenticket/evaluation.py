@@ -36,13 +36,18 @@ class Evaluator:
                                                        row.wall_time)
         todo = [(label, Episode(source, seed)) for label, source, seeds in jobs for seed in seeds
                 if (label, seed) not in known]
-        fresh = self.engine.evaluate([ep for _, ep in todo], self.on_done)
-        for (label, _), result in zip(todo, fresh, strict=True):
-            known[label, result.seed] = result
-        if self.store is not None:
-            self.store.record(EpisodeRow(label, task, r.seed, seed_set_of(r.seed), r.success,
-                                         r.ret, r.length, r.wall_time)
-                              for (label, _), r in zip(todo, fresh, strict=True))
+
+        def keep(start: int, results: list[EpisodeResult]) -> None:
+            labels = [label for label, _ in todo[start : start + len(results)]]
+            known.update({(label, r.seed): r for label, r in zip(labels, results, strict=True)})
+            if self.store is not None:  # recorded as it finishes: a killed run loses little
+                self.store.record(EpisodeRow(label, task, r.seed, seed_set_of(r.seed), r.success,
+                                             r.ret, r.length, r.wall_time)
+                                  for label, r in zip(labels, results, strict=True))
+            if self.on_done:
+                self.on_done(len(results))
+
+        self.engine.evaluate([ep for _, ep in todo], keep)
         return [[known[label, s] for s in seeds] for label, _, seeds in jobs]
 
 

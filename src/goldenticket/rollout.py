@@ -56,7 +56,7 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
                 if success[i] or length[i] >= task.max_steps:
                     break
         live = [i for i in live if not success[i] and length[i] < task.max_steps]
-    wall = (time.perf_counter() - start) / max(n, 1)
+    wall = (time.perf_counter() - start) / max(n, 1)  # episodes ran side by side: the mean
     score = OBJECTIVES[objective]
     return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]),
                                                             task.max_steps), int(length[i]), wall)
@@ -87,7 +87,7 @@ class Engine:
 
     def __init__(self, policy_name: str, task: Task, *, objective: str = "success",
                  workers: int = 1, shard_size: int = 32):
-        self.policy = load_policy(policy_name)
+        self.policy = load_policy(policy_name) if workers == 1 else None
         self.task, self.objective, self.shard_size = task, objective, shard_size
         self._envs: list = []
         self._pool = None
@@ -97,18 +97,20 @@ class Engine:
                                   (policy_name, task.name, task.max_steps, objective))
 
     def evaluate(self, episodes: Sequence[Episode],
-                 on_done: Callable[[int], None] | None = None) -> list[EpisodeResult]:
-        shards = [list(episodes[i : i + self.shard_size])
-                  for i in range(0, len(episodes), self.shard_size)]
+                 on_shard: Callable[[int, list[EpisodeResult]], None] | None = None
+                 ) -> list[EpisodeResult]:
+        """Results in episode order; `on_shard(start, results)` as each shard finishes."""
+        starts = range(0, len(episodes), self.shard_size)
+        shards = [list(episodes[i : i + self.shard_size]) for i in starts]
         if self._pool is None:
             runs = (rollout(self.policy, self.task, s, self.objective, self._envs) for s in shards)
         else:
             runs = self._pool.imap(_run_shard, shards)
         results: list[EpisodeResult] = []
-        for shard_results in runs:
+        for start, shard_results in zip(starts, runs, strict=True):
             results += shard_results
-            if on_done:
-                on_done(len(shard_results))
+            if on_shard:
+                on_shard(start, shard_results)
         return results
 
     def close(self) -> None:

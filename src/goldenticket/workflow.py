@@ -69,7 +69,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path, say: Callable[[str], None]
         top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds)) or result.top(cfg.top_k)
         if not top:
             raise UserError(f"--budget {cfg.budget} is too small to evaluate a single ticket")
-        tickets = [_ticket(c.ticket, cfg, policy, result, c) for c in top]
+        tickets = [_ticket(cfg, policy, result, c, search_seeds) for c in top]
         with _progress(evaluator, cfg.heldout * len(tickets), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
@@ -105,12 +105,12 @@ def _query_evaluator(evaluator: Evaluator):
     return evaluate
 
 
-def _ticket(noise, cfg: SearchConfig, policy, result: SearchResult, candidate) -> Ticket:
-    return Ticket(noise, {
+def _ticket(cfg: SearchConfig, policy, result: SearchResult, candidate, search_seeds) -> Ticket:
+    return Ticket(candidate.ticket, {
         "policy": cfg.policy, "policy_weights_hash": policy.weights_hash(),
-        "noise_shape": list(noise.shape), "task": cfg.task, "method": cfg.method,
+        "noise_shape": list(candidate.ticket.shape), "task": cfg.task, "method": cfg.method,
         "budget": cfg.budget, "episodes_used": result.episodes_used, "seed": cfg.seed,
-        "objective": cfg.objective, "search_seeds": [min(candidate.seeds), max(candidate.seeds)],
+        "objective": cfg.objective, "search_seeds": [search_seeds[0], search_seeds[-1]],
         "search_score": candidate.mean_return, "search_episodes": candidate.n,
     })
 
