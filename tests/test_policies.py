@@ -36,3 +36,14 @@ def test_bad_policy_inputs(tmp_path):
     (tmp_path / "config.json").write_text("{not json")
     with pytest.raises(UserError, match="cannot load policy"):
         MLPPolicy.load(tmp_path)
+
+
+def test_every_bundled_policy_loads_runs_and_has_a_model_card(rng):
+    from goldenticket.policies import BUNDLED_DIR, policy_names
+
+    assert "metaworld/pick-place-v3/flow" in policy_names()
+    for name in policy_names():
+        policy = load_policy(name)
+        assert policy.name == name and (BUNDLED_DIR / name / "MODEL_CARD.md").is_file()
+        noise = rng.standard_normal((2, *policy.noise_shape)).astype(np.float32)
+        assert policy.act(np.zeros((2, 39), np.float32), noise).shape == (2, policy.n_exec, 4)

@@ -53,12 +53,13 @@ class Evaluator:
 
 @dataclass
 class Judged:
-    """One noise source's held-out outcome, with its test against the base policy."""
+    """One noise source's held-out outcome, with its tests against the base and zero ticket."""
 
     label: str
     rate: Rate
     successes: list[bool] = field(repr=False)
     p_value: float | None = None  # one-sided exact paired test vs base; None for the base
+    p_vs_zero: float | None = None  # the same test vs the zero ticket; None for base and zero
 
     @property
     def golden(self) -> bool:
@@ -68,12 +69,15 @@ class Judged:
         out = self.rate.to_dict()
         if self.p_value is not None:
             out |= {"p_value": self.p_value, "verdict": "golden" if self.golden else "not golden"}
+        if self.p_vs_zero is not None:
+            out["p_vs_zero"] = self.p_vs_zero
         return out
 
 
 def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence[int],
           base: NoiseSource | None = None) -> dict[str, Judged]:
-    """The base policy and each source on the same held-out seeds, each tested against base."""
+    """The base policy and each source on the same held-out seeds, each tested against base
+    and, when a source is labelled "zero", every other source also against the zero ticket."""
     jobs = [("base", base or Gaussian(), seeds)] + [(k, s, seeds) for k, s in sources.items()]
     outcomes = evaluator.run(jobs)
     base_succ = [r.success for r in outcomes[0]]
@@ -81,4 +85,8 @@ def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence
     for (label, _, _), results in zip(jobs[1:], outcomes[1:], strict=True):
         succ = [r.success for r in results]
         judged[label] = Judged(label, Rate.of(succ), succ, paired_exact_test(succ, base_succ))
+    if "zero" in judged:
+        for label in set(sources) - {"zero"}:
+            judged[label].p_vs_zero = paired_exact_test(judged[label].successes,
+                                                        judged["zero"].successes)
     return judged

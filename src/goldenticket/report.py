@@ -4,14 +4,15 @@ from __future__ import annotations
 
 
 def verdict_table(rows: dict[str, dict]) -> str:
-    """One line per noise source: success rate, 95% Wilson interval, p vs base, verdict."""
+    """One line per noise source: success rate, 95% Wilson interval, p-values, verdict."""
     width = max(len(label) for label in rows)
-    lines = [f"{'noise':<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10}  verdict"]
+    lines = [f"{'noise':<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10} "
+             f"{'p vs zero':>10}  verdict"]
     for label, r in rows.items():
-        p = f"{r['p_value']:.3g}" if "p_value" in r else "-"
+        p_base, p_zero = (f"{r[key]:.3g}" if key in r else "-" for key in ("p_value", "p_vs_zero"))
         ci = f"[{r['ci_low']:.1%}, {r['ci_high']:.1%}]"
-        lines.append(f"{label:<{width}} {r['success_rate']:>8.1%} {ci:>16} {r['n']:>5} {p:>10}  "
-                     f"{r.get('verdict', '')}".rstrip())
+        lines.append(f"{label:<{width}} {r['success_rate']:>8.1%} {ci:>16} {r['n']:>5} {p_base:>10} "
+                     f"{p_zero:>10}  {r.get('verdict', '')}".rstrip())
     return "\n".join(lines)
 
 
@@ -28,4 +29,4 @@ def summary_text(summary: dict) -> str:
         line = (f"No golden ticket: the best ticket ({golden['ticket_id']}, "
                 f"{golden['success_rate']:.1%}) is not significantly better than the base "
                 f"({summary['base']['success_rate']:.1%}); p = {golden['p_value']:.3g} >= 0.05")
-    return f"{verdict_table(rows)}\n\n{line}\n{summary['p_value_note']}."
+    return f"{verdict_table(rows)}\n\n{line}\n{summary['p_value_note']}"

@@ -117,9 +117,10 @@ def _ticket(cfg: SearchConfig, policy, result: SearchResult, candidate, search_s
 
 def _adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) -> None:
     """Testing k tickets on the same seeds: Holm-adjust their p-values so 'golden' stays honest."""
-    raw = [judged[t].p_value for t in ticket_ids]
-    for ticket_id, p in zip(ticket_ids, holm_adjust(raw), strict=True):
-        judged[ticket_id].p_value = p
+    for attr in ("p_value", "p_vs_zero"):
+        adjusted = holm_adjust([getattr(judged[t], attr) for t in ticket_ids])
+        for ticket_id, p in zip(ticket_ids, adjusted, strict=True):
+            setattr(judged[ticket_id], attr, p)
 
 
 def _summary(cfg, judged, tickets, out, result, heldout) -> dict:
@@ -137,8 +138,10 @@ def _summary(cfg, judged, tickets, out, result, heldout) -> dict:
         "heldout_seeds": span,
         "base": judged["base"].to_dict(), "zero": judged["zero"].to_dict(),
         "golden": entries[0], "tickets": entries,
-        "p_value_note": "one-sided exact McNemar test vs base on paired held-out seeds; "
-                        f"ticket p-values Holm-adjusted over the {len(tickets)} tickets tested",
+        "p_value_note": "p-values: one-sided exact McNemar (sign) test on the paired held-out "
+                        "seeds, ticket better than base (p vs base) or than the zero ticket "
+                        f"(p vs zero), Holm-adjusted over the {len(tickets)} tickets tested. "
+                        "'golden' means p vs base < 0.05.",
     }
 
 
