@@ -111,3 +111,9 @@ def test_bad_inputs_exit_2_with_one_line(policy_dir, search_run, tmp_path):
         assert proc.returncode == 2, (name, proc.stderr)
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and "Traceback" not in proc.stderr, (name, proc.stderr)
+
+
+def test_policies_lists_bundled_policies_with_measured_numbers(capsys):
+    assert main(["policies"]) == 0
+    out = capsys.readouterr().out
+    assert "metaworld/pick-place-v3/flow base" in out and "%" in out

@@ -76,6 +76,8 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--denoise-steps", type=int, default=10, help="Euler / DDIM steps at inference")
     tr.add_argument("--seed", type=int, default=0)
 
+    sub.add_parser("policies", help="list bundled policies with their measured success")
+
     tickets = sub.add_parser("tickets", help="inspect ticket files")
     tickets_sub = tickets.add_subparsers(dest="tickets_command", required=True)
     tickets_sub.add_parser("show", help="print a ticket's id, shape and metadata").add_argument(
@@ -147,6 +149,18 @@ def _train(args) -> int:
     return 0
 
 
+def _policies(args) -> int:
+    from goldenticket.policies import BUNDLED_DIR, policy_names
+    from goldenticket.report import verdict_table
+
+    cards = {name: json.loads((BUNDLED_DIR / name / "card.json").read_text())
+             for name in policy_names()}
+    rows = {f"{name} {noise}": card[noise] for name, card in cards.items() for noise in ("base", "zero")}
+    print(verdict_table(rows, title="policy and noise"))
+    print(f"Held-out success measured when each policy was trained; cards in {BUNDLED_DIR}.")
+    return 0
+
+
 def _tickets(args) -> int:
     from goldenticket.tickets import Ticket
 
@@ -158,7 +172,7 @@ def _tickets(args) -> int:
 
 
 COMMANDS = {"demo": _demo, "search": _search, "evaluate": _evaluate, "train": _train,
-            "tickets": _tickets}
+            "policies": _policies, "tickets": _tickets}
 
 if __name__ == "__main__":
     sys.exit(main())

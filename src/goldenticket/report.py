@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 
-def verdict_table(rows: dict[str, dict]) -> str:
+def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
     """One line per noise source: success rate, 95% Wilson interval, p-values, verdict."""
-    width = max(len(label) for label in rows)
-    lines = [f"{'noise':<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10} "
+    width = max(len(label) for label in [*rows, title])
+    lines = [f"{title:<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10} "
              f"{'p vs zero':>10}  verdict"]
     for label, r in rows.items():
         p_base, p_zero = (f"{r[key]:.3g}" if key in r else "-" for key in ("p_value", "p_vs_zero"))
