@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -47,7 +46,7 @@ class SearchConfig:
             raise UserError(f"unknown objective {self.objective!r}; choose from {list(OBJECTIVES)}")
 
 
-def find_golden_tickets(cfg: SearchConfig, out: Path, say: Callable[[str], None] = print) -> dict:
+def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     """Run the whole job into `out`; resumes from `out/run.sqlite` if it holds the same config."""
     cfg.check()
     policy, task = load_policy(cfg.policy), get_task(cfg.task)
@@ -69,13 +68,15 @@ def find_golden_tickets(cfg: SearchConfig, out: Path, say: Callable[[str], None]
         top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds)) or result.top(cfg.top_k)
         if not top:
             raise UserError(f"--budget {cfg.budget} is too small to evaluate a single ticket")
-        tickets = [_ticket(cfg, policy, result, c, search_seeds) for c in top]
+        weights = policy.weights_hash()
+        tickets = [_ticket(cfg, weights, result, c, search_seeds) for c in top]
         with _progress(evaluator, cfg.heldout * len(tickets), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
     store.close()
     _adjust_for_multiplicity(judged, [t.id for t in tickets])
-    summary = _summary(cfg, judged, tickets, out, result, heldout)
+    span = [heldout[0], heldout[-1]]
+    summary = _summary(cfg, judged, _save_ranked(tickets, judged, out, span), result, span)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
@@ -105,9 +106,10 @@ def _query_evaluator(evaluator: Evaluator):
     return evaluate
 
 
-def _ticket(cfg: SearchConfig, policy, result: SearchResult, candidate, search_seeds) -> Ticket:
+def _ticket(cfg: SearchConfig, weights_hash: str, result: SearchResult, candidate,
+            search_seeds: list[int]) -> Ticket:
     return Ticket(candidate.ticket, {
-        "policy": cfg.policy, "policy_weights_hash": policy.weights_hash(),
+        "policy": cfg.policy, "policy_weights_hash": weights_hash,
         "noise_shape": list(candidate.ticket.shape), "task": cfg.task, "method": cfg.method,
         "budget": cfg.budget, "episodes_used": result.episodes_used, "seed": cfg.seed,
         "objective": cfg.objective, "search_seeds": [search_seeds[0], search_seeds[-1]],
@@ -123,8 +125,9 @@ def _adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) -
             setattr(judged[ticket_id], attr, p)
 
 
-def _summary(cfg, judged, tickets, out, result, heldout) -> dict:
-    span = [heldout[0], heldout[-1]]
+def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path,
+                 span: list[int]) -> list[dict]:
+    """Save each ticket with its held-out result; entries best first (success, then p)."""
     ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate, judged[t.id].p_value))
     entries = []
     for t in ranked:
@@ -132,6 +135,11 @@ def _summary(cfg, judged, tickets, out, result, heldout) -> dict:
         path = t.save(out / "tickets" / f"{t.id}.safetensors")
         entries.append(judged[t.id].to_dict() | {"ticket_id": t.id, "ticket_path": str(path),
                                                  "search_score": t.metadata["search_score"]})
+    return entries
+
+
+def _summary(cfg: SearchConfig, judged: dict[str, Judged], entries: list[dict],
+             result: SearchResult, span: list[int]) -> dict:
     return {
         "task": cfg.task, "policy": cfg.policy, "method": cfg.method, "seed": cfg.seed,
         "search_episodes": result.episodes_used, "stopped_because": result.stopped_because,
@@ -140,7 +148,7 @@ def _summary(cfg, judged, tickets, out, result, heldout) -> dict:
         "golden": entries[0], "tickets": entries,
         "p_value_note": "p-values: one-sided exact McNemar (sign) test on the paired held-out "
                         "seeds, ticket better than base (p vs base) or than the zero ticket "
-                        f"(p vs zero), Holm-adjusted over the {len(tickets)} tickets tested. "
+                        f"(p vs zero), Holm-adjusted over the {len(entries)} tickets tested. "
                         "'golden' means p vs base < 0.05.",
     }
 
