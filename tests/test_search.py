@@ -285,3 +285,13 @@ def test_query_holds_a_read_only_float32_copy():
     source[0, 0] = 5.0
     assert query.ticket.dtype == np.float32 and query.ticket[0, 0] == 0.0
     assert query.seeds == (1, 2) and not query.ticket.flags.writeable
+
+
+def test_perfect_means_every_episode_succeeded_whatever_the_objective():
+    def discounted(queries: list[Query]) -> list[EpisodeOutcome]:  # returns < 1, all successes
+        return [EpisodeOutcome(np.full(len(q.seeds), 0.9), np.ones(len(q.seeds), bool))
+                for q in queries]
+
+    cem = make_optimizer("cem", SHAPE, SEEDS, np.random.default_rng(0), population=10)
+    result = run_search(cem, discounted, budget=10_000, stop_after_perfect=3)
+    assert result.stopped_because == "k perfect tickets" and result.episodes_used == 10 * 25

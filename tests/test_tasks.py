@@ -56,3 +56,12 @@ def test_bad_task_and_seed_requests_are_user_errors():
         get_task("metaworld/no-such-task")
     with pytest.raises(UserError):
         seeds_in("search", 2_000_000)
+
+
+def test_objectives_rank_episodes_as_documented():
+    from goldenticket.tasks import OBJECTIVES
+
+    success, discounted, length = (OBJECTIVES[k] for k in ("success", "discounted-success", "length"))
+    assert success(True, 80, 150) == 1.0 and success(False, 150, 150) == 0.0
+    assert 1.0 > discounted(True, 40, 150) > discounted(True, 80, 150) > discounted(False, 30, 150)
+    assert length(True, 40, 150) > length(True, 80, 150) > length(False, 150, 150) == -1.0

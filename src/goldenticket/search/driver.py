@@ -68,13 +68,13 @@ class SearchResult:
 
 def run_search(optimizer: Optimizer, evaluate: Callable[[list[Query]], list[EpisodeOutcome]],
                *, budget: int, max_tickets: int | None = None,
-               stop_after_perfect: int | None = None, perfect_return: float = 1.0,
+               stop_after_perfect: int | None = None,
                on_batch: Callable[[int], None] | None = None) -> SearchResult:
     """Loop ask -> evaluate -> tell until a stop condition; never spend more than `budget` episodes.
 
     A ticket evaluated again (same bytes) accumulates into its existing Candidate. `max_tickets`
     caps the number of distinct tickets. `stop_after_perfect` stops once that many candidates have
-    run on every search seed of the optimizer with every return >= `perfect_return`.
+    run on every search seed of the optimizer and succeeded in every episode.
     `on_batch(episodes)` is called after each evaluation. See the module docstring for how a
     batch that does not fit is truncated.
     """
@@ -94,7 +94,7 @@ def run_search(optimizer: Optimizer, evaluate: Callable[[list[Query]], list[Epis
         if cut is None:
             optimizer.tell(batch, [np.asarray(o.returns, dtype=np.float64) for o in outcomes])
         perfect = stop_after_perfect is not None and \
-            _count_perfect(found, optimizer.seeds, perfect_return) >= stop_after_perfect
+            _count_perfect(found, optimizer.seeds) >= stop_after_perfect
         if perfect or cut is not None:
             return SearchResult(list(found.values()), used, "k perfect tickets" if perfect else cut)
 
@@ -142,7 +142,7 @@ def _record(found: dict[bytes, Candidate], batch: list[Query],
     return episodes
 
 
-def _count_perfect(found: dict[bytes, Candidate], seeds: tuple[int, ...], perfect: float) -> int:
-    """Candidates run on every search seed with every episode's return >= `perfect`."""
+def _count_perfect(found: dict[bytes, Candidate], seeds: tuple[int, ...]) -> int:
+    """Candidates run on every search seed that succeeded in every episode (any objective)."""
     needed = set(seeds)
-    return sum(needed <= set(c.seeds) and min(c.returns) >= perfect for c in found.values())
+    return sum(needed <= set(c.seeds) and all(c.successes) for c in found.values())
