@@ -47,6 +47,8 @@ class Evaluator:
             if self.on_done:
                 self.on_done(len(results))
 
+        if self.on_done:  # episodes read back from the store count as done
+            self.on_done(sum(len(seeds) for _, _, seeds in jobs) - len(todo))
         self.engine.evaluate([ep for _, ep in todo], keep)
         return [[known[label, s] for s in seeds] for label, _, seeds in jobs]
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import multiprocessing as mp
+import signal
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -68,6 +69,7 @@ _worker: dict = {}
 
 
 def _init_worker(policy_name: str, task_name: str, max_steps: int, objective: str) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle
     torch.set_num_threads(1)
     _worker.update(policy=load_policy(policy_name), task=get_task(task_name, max_steps),
                    objective=objective, envs=[])
