@@ -74,6 +74,8 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--action-noise", type=float, default=0.0)
     tr.add_argument("--steps", type=int, default=20_000, help="gradient steps")
     tr.add_argument("--denoise-steps", type=int, default=10, help="Euler / DDIM steps at inference")
+    tr.add_argument("--horizon", type=int, default=8, help="actions predicted per call (H)")
+    tr.add_argument("--n-exec", type=int, default=4, help="actions executed before replanning")
     tr.add_argument("--seed", type=int, default=0)
 
     sub.add_parser("policies", help="list bundled policies with their measured success")
@@ -144,7 +146,8 @@ def _train(args) -> int:
 
     style = DemoStyle(args.grasp_offset, args.action_noise)
     build_policy(args.task, args.kind, args.out, n_demos=args.demos, style=style,
-                 steps=args.steps, denoise_steps=args.denoise_steps, seed=args.seed)
+                 steps=args.steps, denoise_steps=args.denoise_steps, horizon=args.horizon,
+                 n_exec=args.n_exec, seed=args.seed)
     print(f"Wrote {args.out} (config.json, model.safetensors, MODEL_CARD.md).")
     return 0
 

@@ -131,19 +131,24 @@ def _denoising_loss(model, cfg, obs, x0, gen):
 
 
 def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: DemoStyle,
-                 steps: int, denoise_steps: int = 10, seed: int = 0, heldout: int = 200) -> dict:
+                 steps: int, denoise_steps: int = 10, horizon: int = 8, n_exec: int = 4,
+                 seed: int = 0, heldout: int = 200) -> dict:
     """Collect demos, train, measure base and zero-ticket success, write the policy folder."""
     from goldenticket.evaluation import Evaluator, judge
     from goldenticket.noise import Constant
     from goldenticket.rollout import Engine
 
-    for name, value in (("--demos", n_demos), ("--steps", steps), ("--denoise-steps", denoise_steps)):
+    for name, value in (("--demos", n_demos), ("--steps", steps), ("--denoise-steps", denoise_steps),
+                        ("--horizon", horizon), ("--n-exec", n_exec)):
         if value <= 0:
             raise UserError(f"{name} must be > 0, got {value}")
+    if n_exec > horizon:
+        raise UserError(f"--n-exec {n_exec} cannot exceed --horizon {horizon}")
     task = get_task(task_name)
     name = f"{task_name}/{kind}"
     demos = collect_demos(task, n_demos, style, seed)
-    cfg = PolicyConfig(name, kind, task.obs_dim, task.action_dim, steps=denoise_steps)
+    cfg = PolicyConfig(name, kind, task.obs_dim, task.action_dim, horizon, n_exec,
+                       steps=denoise_steps)
     policy, losses = train_policy(cfg, demos, steps=steps, seed=seed)
     policy.save(out)
     with Engine(str(out), task) as engine:
@@ -182,7 +187,7 @@ def model_card(card: dict, cfg: PolicyConfig) -> str:
   - zero ticket (w = 0): {rate(card['zero'])}
 
 Rebuild: `goldenticket train --task {card['policy'].rsplit('/', 1)[0]} --kind {cfg.kind} \\
---demos {card['demos']} \\
---grasp-offset {card['style']['grasp_offset']} --action-noise {card['style']['action_noise']} \\
---steps {card['train_steps']} --seed {card['seed']} --out DIR`
+--demos {card['demos']} --grasp-offset {card['style']['grasp_offset']} \\
+--action-noise {card['style']['action_noise']} --steps {card['train_steps']} --seed {card['seed']} \\
+--horizon {cfg.horizon} --n-exec {cfg.n_exec} --denoise-steps {cfg.steps} --out DIR`
 """
