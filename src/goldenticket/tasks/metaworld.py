@@ -39,7 +39,7 @@ class MetaWorldEnv:
     """
 
     def __init__(self, env_name: str):
-        _quiet()
+        _quiet()  # process-wide filters, scoped to gymnasium and metaworld modules
         self._env = _env_classes()[env_name]()
         env = self._env
         env._partially_observable = False  # the goal is part of the observation
@@ -50,15 +50,11 @@ class MetaWorldEnv:
 
     def reset(self, seed: int) -> np.ndarray:
         self._env.np_random = np.random.Generator(np.random.PCG64(seed))
-        with warnings.catch_warnings():
-            _quiet()
-            obs, _ = self._env.reset()
+        obs, _ = self._env.reset()
         return obs.astype(np.float32)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool]:
-        with warnings.catch_warnings():
-            _quiet()
-            obs, reward, _, _, info = self._env.step(np.asarray(action, dtype=np.float64))
+        obs, reward, _, _, info = self._env.step(np.asarray(action, dtype=np.float64))
         return obs.astype(np.float32), float(reward), bool(info["success"])
 
 
