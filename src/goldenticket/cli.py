@@ -95,8 +95,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"goldenticket: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("goldenticket: interrupted; finished episodes are kept, rerun to resume",
-              file=sys.stderr)
+        print("goldenticket: interrupted (demo and search keep finished episodes in --out: "
+              "rerun the same command to resume)", file=sys.stderr)
         return 130
 
 

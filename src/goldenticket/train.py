@@ -58,6 +58,9 @@ def collect_demos(task: MetaWorldTask, n: int, style: DemoStyle, seed: int = 0) 
             demos.actions.append(act_seq)
             bar.update()
     bar.close()
+    if len(demos.obs) < n:
+        raise UserError(f"only {len(demos.obs)} of {n} expert demos succeeded in {demos.attempts} "
+                        "attempts; lower --grasp-offset or --action-noise")
     return demos
 
 
