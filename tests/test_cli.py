@@ -99,6 +99,7 @@ def test_bad_inputs_exit_2_with_one_line(policy_dir, search_run, tmp_path):
         "missing ticket": evaluate + ["--ticket", str(tmp_path / "none.safetensors")],
         "overlapping seeds": ["evaluate", "--policy", policy_dir, "--task", TASK, "--seeds",
                               "0:3", "--ticket", ticket],
+        "training seeds": evaluate[:-1] + ["2000000:2000003"],
         "bad seed range": evaluate[:-1] + ["5:2"],
         "zero budget": ["search", "--policy", policy_dir, "--task", TASK, "--budget", "0",
                         "--out", str(tmp_path / "o")],

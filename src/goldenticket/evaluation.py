@@ -30,10 +30,11 @@ class Evaluator:
         """Results per job, in seed order; new episodes of all jobs run in one engine call."""
         task = self.engine.task.name
         known = {}
-        for label in {label for label, _, _ in jobs} if self.store is not None else ():
-            for row in self.store.episodes(ticket_id=label, task=task):
-                known[label, row.seed] = EpisodeResult(row.seed, row.success, row.ret, row.length,
-                                                       row.wall_time)
+        if self.store is not None:
+            for label in {label for label, _, _ in jobs}:
+                for row in self.store.episodes(ticket_id=label, task=task):
+                    known[label, row.seed] = EpisodeResult(row.seed, row.success, row.ret,
+                                                           row.length, row.wall_time)
         todo = [(label, Episode(source, seed)) for label, source, seeds in jobs for seed in seeds
                 if (label, seed) not in known]
 

@@ -17,7 +17,8 @@ from goldenticket.rollout import Engine
 from goldenticket.search import EpisodeOutcome, SearchResult, make_optimizer, run_search
 from goldenticket.stats import holm_adjust
 from goldenticket.store import RunStore
-from goldenticket.tasks import OBJECTIVES, get_task, seeds_in
+from goldenticket.tasks import OBJECTIVES, SEED_SETS, get_task, seeds_in
+from goldenticket.tasks.base import require_unseen
 from goldenticket.tickets import Ticket, zero_ticket
 
 
@@ -158,11 +159,11 @@ def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path],
     """Base, zero ticket and each ticket on `seeds`; p-values vs base (one-sided, paired)."""
     policy, task = load_policy(policy_name), get_task(task_name)
     tickets = [Ticket.load(p, expected_shape=policy.noise_shape) for p in ticket_paths]
+    require_unseen(seeds, SEED_SETS["train"], "training-demonstration seeds")
     for path, ticket in zip(ticket_paths, tickets, strict=True):
         low, high = ticket.metadata.get("search_seeds", (-1, -1))
-        if low <= seeds[-1] and seeds[0] <= high:
-            raise UserError(f"seeds {seeds[0]}:{seeds[-1] + 1} overlap the search seeds "
-                            f"{low}:{high + 1} of {path}; held-out seeds must be new")
+        if low >= 0:
+            require_unseen(seeds, range(low, high + 1), f"search seeds of {path}")
     sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
     sources |= {t.id: Constant(t.noise) for t in tickets}
     with Engine(policy_name, task, workers=workers) as engine:

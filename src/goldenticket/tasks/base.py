@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
@@ -17,14 +17,21 @@ SEED_SETS: dict[str, range] = {
 }
 
 
-def seeds_in(seed_set: str, n: int, offset: int = 0) -> list[int]:
-    """The first `n` seeds of a seed set, after skipping `offset` of them."""
+def seeds_in(seed_set: str, n: int) -> list[int]:
+    """The first `n` seeds of a seed set."""
     if seed_set not in SEED_SETS:
         raise UserError(f"unknown seed set {seed_set!r}; choose from {sorted(SEED_SETS)}")
     block = SEED_SETS[seed_set]
-    if n < 0 or offset < 0 or offset + n > len(block):
-        raise UserError(f"seed set {seed_set!r} has {len(block)} seeds; asked for {offset}+{n}")
-    return list(block[offset : offset + n])
+    if not 0 <= n <= len(block):
+        raise UserError(f"seed set {seed_set!r} has {len(block)} seeds; asked for {n}")
+    return list(block[:n])
+
+
+def require_unseen(seeds: Sequence[int], used: range, what: str) -> None:
+    """UserError unless `seeds` avoid `used`: numbers on seen states would not be held-out."""
+    if min(seeds) < used.stop and used.start <= max(seeds):
+        raise UserError(f"seeds {min(seeds)}:{max(seeds) + 1} overlap the {what} "
+                        f"({used.start}:{used.stop}); held-out seeds must be new")
 
 
 def seed_set_of(seed: int) -> str:
