@@ -122,10 +122,9 @@ def test_store_resume(tmp_path):
         store.record([row(0, ticket_id="base", seed_set="heldout")])
     with RunStore(path) as store:
         assert store.get_config() == {"policy": "dp", "budget": 10}
-        done = store.done("abc123abc123", "search")
-        assert done == {s: row(s) for s in range(3)}
-        assert store.done("abc123abc123", "heldout") == {}
-        assert store.done("base", "heldout") == {0: row(0, ticket_id="base", seed_set="heldout")}
+        assert store.episodes(ticket_id="abc123abc123") == [row(s) for s in range(3)]
+        assert store.episodes(ticket_id="abc123abc123", seed_set="heldout") == []
+        assert store.episodes(ticket_id="base") == [row(0, ticket_id="base", seed_set="heldout")]
 
 
 def test_store_replaces_same_episode(tmp_path):
@@ -142,9 +141,7 @@ def test_store_filters_and_tasks(tmp_path):
     store.record([row(0), row(0, task="reach"), row(1, ticket_id="zero", seed_set="heldout")])
     assert store.episodes(ticket_id="zero") == [row(1, ticket_id="zero", seed_set="heldout")]
     assert store.episodes(seed_set="search", task="reach") == [row(0, task="reach")]
-    assert store.done("abc123abc123", "search", task="push") == {0: row(0)}
-    with pytest.raises(ValueError, match="task="):
-        store.done("abc123abc123", "search")
+    assert store.episodes(ticket_id="abc123abc123", task="push") == [row(0)]
 
 
 def test_store_accepts_numpy_scalars(tmp_path):
@@ -162,16 +159,6 @@ def test_store_record_is_one_transaction(tmp_path):
     with pytest.raises(ValueError):
         store.record([row(0), bad])
     assert store.episodes() == []
-
-
-def test_store_checkpoints(tmp_path):
-    path = tmp_path / "run.sqlite"
-    with RunStore(path) as store:
-        assert store.load_checkpoint("cmaes") is None
-        store.save_checkpoint("cmaes", b"\x00state-1")
-        store.save_checkpoint("cmaes", b"\x00state-2")
-    with RunStore(path) as store:
-        assert store.load_checkpoint("cmaes") == b"\x00state-2"
 
 
 def test_store_rejects_corrupt_and_foreign_files(tmp_path):

@@ -1,4 +1,4 @@
-"""The run store: one SQLite file per run holding config, episodes and checkpoints, for resuming."""
+"""The run store: one SQLite file per run holding its config and every episode, for resuming."""
 
 from __future__ import annotations
 
@@ -18,7 +18,6 @@ CREATE TABLE episodes (
     success INTEGER NOT NULL, ret REAL NOT NULL, length INTEGER NOT NULL, wall_time REAL NOT NULL,
     PRIMARY KEY (ticket_id, task, seed, seed_set)
 );
-CREATE TABLE checkpoints (name TEXT PRIMARY KEY, state BLOB NOT NULL);
 """
 _COLUMNS = "ticket_id, task, seed, seed_set, success, ret, length, wall_time"
 
@@ -125,25 +124,3 @@ class RunStore:
             "ORDER BY ticket_id, task, seed_set, seed"
         )
         return [_row(v) for v in self._con.execute(query, used)]
-
-    def done(
-        self, ticket_id: str, seed_set: str, *, task: str | None = None
-    ) -> dict[int, EpisodeRow]:
-        """Finished episodes as seed -> row, so a resumed run can skip them.
-
-        Without `task`, seeds must be unique across tasks; pass `task` for multi-task runs.
-        """
-        rows = self.episodes(ticket_id=ticket_id, seed_set=seed_set, task=task)
-        result = {r.seed: r for r in rows}
-        if len(result) != len(rows):
-            raise ValueError(f"seeds of ticket {ticket_id} repeat across tasks; pass task=")
-        return result
-
-    def save_checkpoint(self, name: str, state: bytes) -> None:
-        """Store opaque state (e.g. a pickled optimizer) under name, replacing any earlier one."""
-        with self._con:
-            self._con.execute("INSERT OR REPLACE INTO checkpoints VALUES (?, ?)", (name, state))
-
-    def load_checkpoint(self, name: str) -> bytes | None:
-        row = self._con.execute("SELECT state FROM checkpoints WHERE name = ?", (name,)).fetchone()
-        return None if row is None else bytes(row[0])

@@ -71,8 +71,12 @@ class Denoiser(nn.Module):
 
 
 def ddim_alpha_bar(t: torch.Tensor) -> torch.Tensor:
-    """Cosine schedule: cumulative signal fraction at continuous time t in [0, 1]."""
-    return torch.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2
+    """Cosine schedule: cumulative signal fraction at continuous time t in [0, 1].
+
+    Floored at 1e-3: the raw cosine reaches ~2e-15 at t=1, where x_t is pure noise, the model
+    learns nothing, and the first DDIM step's x0 = (x - eps) / sqrt(alpha_bar) is rounding error.
+    """
+    return (torch.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2).clamp(min=1e-3)
 
 
 class MLPPolicy:
