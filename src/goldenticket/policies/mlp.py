@@ -16,6 +16,7 @@ from torch import nn
 from goldenticket.errors import UserError
 
 KINDS = ("flow", "ddim")
+BLOCK = 16  # rows per network call; see MLPPolicy.act
 
 
 @dataclass
@@ -71,12 +72,8 @@ class Denoiser(nn.Module):
 
 
 def ddim_alpha_bar(t: torch.Tensor) -> torch.Tensor:
-    """Cosine schedule: cumulative signal fraction at continuous time t in [0, 1].
-
-    Floored at 1e-3: the raw cosine reaches ~2e-15 at t=1, where x_t is pure noise, the model
-    learns nothing, and the first DDIM step's x0 = (x - eps) / sqrt(alpha_bar) is rounding error.
-    """
-    return (torch.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2).clamp(min=1e-3)
+    """Cosine schedule: cumulative signal fraction at continuous time t in [0, 1]."""
+    return torch.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2
 
 
 class MLPPolicy:
@@ -85,6 +82,8 @@ class MLPPolicy:
     def __init__(self, cfg: PolicyConfig, model: Denoiser | None = None):
         if cfg.kind not in KINDS:
             raise UserError(f"unknown policy kind {cfg.kind!r}; choose from {KINDS}")
+        if cfg.kind == "ddim" and not 1 <= cfg.steps <= cfg.train_timesteps:
+            raise UserError(f"DDIM steps must be in 1..{cfg.train_timesteps}, got {cfg.steps}")
         self.cfg = cfg
         self.model = (model or Denoiser(cfg)).eval()
 
@@ -94,10 +93,16 @@ class MLPPolicy:
 
     @torch.no_grad()
     def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """The network runs on fixed blocks of BLOCK rows, the last zero-padded: CPU matmul
+        kernels change with the row count, and fixed shapes keep each row's actions bitwise
+        independent of its batch (tests/test_policies.py)."""
+        n, pad = len(obs), -len(obs) % BLOCK
         obs_n = self.model.normalise_obs(torch.as_tensor(obs, dtype=torch.float32))
-        x = torch.tensor(noise, dtype=torch.float32)  # a copy: tickets may be read-only views
-        x = self._flow(obs_n, x) if self.cfg.kind == "flow" else self._ddim(obs_n, x)
-        return self.model.denormalise_actions(x)[:, : self.cfg.n_exec].numpy()
+        obs_n = torch.nn.functional.pad(obs_n, (0, 0, 0, pad))
+        x = torch.nn.functional.pad(torch.as_tensor(noise, dtype=torch.float32), (0, 0, 0, 0, 0, pad))
+        denoise = self._flow if self.cfg.kind == "flow" else self._ddim
+        x = torch.cat([denoise(o, xb) for o, xb in zip(obs_n.split(BLOCK), x.split(BLOCK), strict=True)])
+        return self.model.denormalise_actions(x[:n])[:, : self.cfg.n_exec].numpy()
 
     def _flow(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         ts = torch.linspace(1.0, 0.0, self.cfg.steps + 1)
@@ -106,11 +111,13 @@ class MLPPolicy:
         return x
 
     def _ddim(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        grid = torch.linspace(1.0, 0.0, self.cfg.steps + 1)
+        """Deterministic DDIM on "leading" training timesteps (steps-1)*T/steps, ..., T/steps, 0,
+        ending on the clean sample. The terminal timestep is never used: its alpha_bar is ~0,
+        which would make x0 = (x - eps) / sqrt(alpha_bar) rounding error."""
         T = self.cfg.train_timesteps
-        ts = torch.round(grid * (T - 1)) / (T - 1)  # on the discrete training grid
-        for t, t_next in zip(ts[:-1], ts[1:], strict=True):
-            a, a_next = ddim_alpha_bar(t), ddim_alpha_bar(t_next)
+        ts = torch.arange(self.cfg.steps - 1, -1, -1) * (T // self.cfg.steps) / (T - 1)
+        alphas = [ddim_alpha_bar(t) for t in ts] + [torch.tensor(1.0)]
+        for t, a, a_next in zip(ts, alphas[:-1], alphas[1:], strict=True):
             eps = self.model(obs_n, x, t.expand(len(x)))
             x0 = ((x - (1 - a).sqrt() * eps) / a.sqrt()).clamp(-1.5, 1.5)
             x = a_next.sqrt() * x0 + (1 - a_next).sqrt() * eps
