@@ -11,7 +11,9 @@ class NoisePolicy(Protocol):
     """Maps (observation, initial noise) to an action chunk, deterministically.
 
     `noise_shape` is (H, A): prediction horizon x action dim. `act` returns the first
-    `n_exec` actions of each predicted chunk; the caller replans after executing them.
+    `n_exec` actions of each predicted chunk; the caller replans after executing them. Each
+    row's actions must not depend on the other rows, so that an episode's result does not
+    depend on its batch slot.
     """
 
     name: str
