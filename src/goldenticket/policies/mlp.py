@@ -99,7 +99,8 @@ class MLPPolicy:
         n, pad = len(obs), -len(obs) % BLOCK
         obs_n = self.model.normalise_obs(torch.as_tensor(obs, dtype=torch.float32))
         obs_n = torch.nn.functional.pad(obs_n, (0, 0, 0, pad))
-        x = torch.nn.functional.pad(torch.as_tensor(noise, dtype=torch.float32), (0, 0, 0, 0, 0, pad))
+        x = torch.tensor(noise, dtype=torch.float32)  # a copy: tickets may be read-only views
+        x = torch.nn.functional.pad(x, (0, 0, 0, 0, 0, pad))
         denoise = self._flow if self.cfg.kind == "flow" else self._ddim
         x = torch.cat([denoise(o, xb) for o, xb in zip(obs_n.split(BLOCK), x.split(BLOCK), strict=True)])
         return self.model.denormalise_actions(x[:n])[:, : self.cfg.n_exec].numpy()
