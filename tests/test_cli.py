@@ -103,6 +103,9 @@ def test_bad_inputs_exit_2_with_one_line(policy_dir, search_run, tmp_path):
         "bad seed range": evaluate[:-1] + ["5:2"],
         "zero budget": ["search", "--policy", policy_dir, "--task", TASK, "--budget", "0",
                         "--out", str(tmp_path / "o")],
+        "bad step count": ["search", "--policy", policy_dir + "@0", "--task", TASK, "--budget", "5",
+                           "--out", str(tmp_path / "o")],
+        "unknown ticket id": evaluate + ["--ticket", "abcdef123456"],
         "unknown method": ["search", "--policy", policy_dir, "--task", TASK, "--budget", "5",
                            "--method", "magic", "--out", str(tmp_path / "o")],
     }
@@ -118,3 +121,17 @@ def test_policies_lists_bundled_policies_with_measured_numbers(capsys):
     assert main(["policies"]) == 0
     out = capsys.readouterr().out
     assert "metaworld/pick-place-v3/flow base" in out and "%" in out
+
+
+def test_bundled_tickets_are_listed_and_found_by_id(search_run, capsys, monkeypatch, tmp_path):
+    from goldenticket.policies import registry
+
+    monkeypatch.setattr(registry, "BUNDLED_DIR", tmp_path)
+    assert main(["tickets", "list"]) == 0 and "No bundled tickets" in capsys.readouterr().out
+    ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["golden"]["ticket_path"])
+    ticket.save(tmp_path / "a" / "flow" / "tickets" / f"{ticket.id}.safetensors")
+    assert main(["tickets", "list"]) == 0
+    listing = capsys.readouterr().out
+    assert ticket.id in listing and "1000000:1000004" in listing
+    assert main(["tickets", "show", ticket.id]) == 0 and ticket.id in capsys.readouterr().out
+    assert main(["tickets", "show", "000000000000"]) == 2

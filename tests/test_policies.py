@@ -58,3 +58,15 @@ def test_every_bundled_policy_loads_runs_and_has_a_model_card(rng):
         assert policy.name == name and (BUNDLED_DIR / name / "MODEL_CARD.md").is_file()
         noise = rng.standard_normal((2, *policy.noise_shape)).astype(np.float32)
         assert policy.act(np.zeros((2, 39), np.float32), noise).shape == (2, policy.n_exec, 4)
+
+
+def test_denoising_steps_set_at_load_time(rng):
+    eight, two = load_policy("metaworld/pick-place-v3/ddim"), load_policy("metaworld/pick-place-v3/ddim@2")
+    assert (eight.cfg.steps, two.cfg.steps) == (8, 2) and two.name.endswith("@2")
+    assert two.weights_hash() == eight.weights_hash()
+    obs = np.zeros((2, 39), np.float32)
+    noise = rng.standard_normal((2, *eight.noise_shape)).astype(np.float32)
+    assert not np.array_equal(two.act(obs, noise), eight.act(obs, noise))
+    for bad in ("metaworld/pick-place-v3/ddim@0", "metaworld/pick-place-v3/ddim@x"):
+        with pytest.raises(UserError, match="step count"):
+            load_policy(bad)

@@ -1,6 +1,6 @@
 import pytest
 
-from goldenticket.stats import Rate, paired_exact_test, wilson_interval
+from goldenticket.stats import Rate, paired_exact_test, sign_test, wilson_interval
 
 
 def test_wilson_known_value():
@@ -81,3 +81,9 @@ def test_rate_all_success_and_empty():
     assert Rate.of([True] * 4).ci_high == pytest.approx(1.0)
     with pytest.raises(ValueError):
         Rate.of([])
+
+
+@pytest.mark.parametrize("wins, losses, expected",
+                         [(3, 0, 0.125), (0, 3, 1.0), (0, 0, 1.0), (9, 1, 11 / 1024)])
+def test_sign_test_across_pairs(wins, losses, expected):
+    assert sign_test(wins, losses) == pytest.approx(expected)

@@ -42,7 +42,8 @@ def _parser() -> argparse.ArgumentParser:
     _search_args(demo)
 
     search = sub.add_parser("search", help="search golden tickets for a policy on a task")
-    search.add_argument("--policy", required=True, help="bundled name or policy folder")
+    search.add_argument("--policy", required=True,
+                        help="bundled name or policy folder; append @N for N denoising steps")
     search.add_argument("--task", required=True, help="e.g. metaworld/pick-place-v3")
     search.add_argument("--method", default="cem-racing", choices=["rs", "cem", "zos", "cem-racing"])
     search.add_argument("--budget", type=int, required=True, help="search episodes")
@@ -59,7 +60,8 @@ def _parser() -> argparse.ArgumentParser:
     ev = sub.add_parser("evaluate", help="judge tickets against the base policy on given seeds")
     ev.add_argument("--policy", required=True)
     ev.add_argument("--task", required=True)
-    ev.add_argument("--ticket", type=Path, action="append", default=[], help="ticket file(s)")
+    ev.add_argument("--ticket", action="append", default=[],
+                    help="ticket file or bundled ticket id (repeatable)")
     ev.add_argument("--seeds", type=_seed_range, required=True, help="seed range A:B")
     ev.add_argument("--seed", type=int, default=0, help="seed of the base policy's noise")
     ev.add_argument("--workers", type=int, default=2)
@@ -71,6 +73,7 @@ def _parser() -> argparse.ArgumentParser:
     tr.add_argument("--out", type=Path, required=True, help="policy folder to write")
     tr.add_argument("--demos", type=int, default=20)
     tr.add_argument("--grasp-offset", type=float, default=0.0)
+    tr.add_argument("--goal-offset", type=float, default=0.0)
     tr.add_argument("--action-noise", type=float, default=0.0)
     tr.add_argument("--steps", type=int, default=20_000, help="gradient steps")
     tr.add_argument("--denoise-steps", type=int, default=10, help="Euler / DDIM steps at inference")
@@ -83,7 +86,8 @@ def _parser() -> argparse.ArgumentParser:
     tickets = sub.add_parser("tickets", help="inspect ticket files")
     tickets_sub = tickets.add_subparsers(dest="tickets_command", required=True)
     tickets_sub.add_parser("show", help="print a ticket's id, shape and metadata").add_argument(
-        "path", type=Path)
+        "ticket", help="ticket file or bundled ticket id")
+    tickets_sub.add_parser("list", help="the golden tickets shipped with the bundled policies")
     return parser
 
 
@@ -128,10 +132,11 @@ def _run_search(cfg, out: Path) -> int:
 
 
 def _evaluate(args) -> int:
+    from goldenticket.policies import find_ticket
     from goldenticket.workflow import evaluate_tickets
 
-    rows = evaluate_tickets(args.policy, args.task, args.ticket, list(args.seeds), args.seed,
-                            args.workers)
+    paths = [find_ticket(ref) for ref in args.ticket]
+    rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers)
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
@@ -144,7 +149,7 @@ def _evaluate(args) -> int:
 def _train(args) -> int:
     from goldenticket.train import DemoStyle, build_policy
 
-    style = DemoStyle(args.grasp_offset, args.action_noise)
+    style = DemoStyle(args.grasp_offset, args.action_noise, args.goal_offset)
     build_policy(args.task, args.kind, args.out, n_demos=args.demos, style=style,
                  steps=args.steps, denoise_steps=args.denoise_steps, horizon=args.horizon,
                  n_exec=args.n_exec, seed=args.seed)
@@ -165,12 +170,27 @@ def _policies(args) -> int:
 
 
 def _tickets(args) -> int:
+    from goldenticket.policies import find_ticket
     from goldenticket.tickets import Ticket
 
-    ticket = Ticket.load(args.path)
+    if args.tickets_command == "list":
+        return _tickets_list()
+    ticket = Ticket.load(find_ticket(args.ticket))
     print(f"ticket {ticket.id}  shape {tuple(ticket.noise.shape)}  "
           f"norm {float((ticket.noise ** 2).sum() ** 0.5):.3f}")
     print(json.dumps(ticket.metadata, indent=2))
+    return 0
+
+
+def _tickets_list() -> int:
+    from goldenticket.policies import bundled_tickets
+    from goldenticket.report import ticket_table
+    from goldenticket.tickets import Ticket
+
+    paths = bundled_tickets()
+    print(ticket_table([Ticket.load(p) for p in paths]) if paths else "No bundled tickets.")
+    print("Reproduce one: goldenticket evaluate --policy POLICY --task TASK --ticket ID --seeds A:B "
+          "(the seeds shown give the recorded numbers; other held-out seeds give fresh ones).")
     return 0
 
 

@@ -30,3 +30,17 @@ def summary_text(summary: dict) -> str:
                 f"{golden['success_rate']:.1%}) is not significantly better than the base "
                 f"({summary['base']['success_rate']:.1%}); p = {golden['p_value']:.3g} >= 0.05")
     return f"{verdict_table(rows)}\n\n{line}\n{summary['p_value_note']}"
+
+
+def ticket_table(tickets: list) -> str:
+    """One line per shipped ticket: policy, id, search score, held-out success and seeds."""
+    rows = [(t.metadata["policy"], t.id, f"{t.metadata['search_score']:.0%}",
+             f"{t.metadata['heldout']['success_rate']:.1%}",
+             f"[{t.metadata['heldout']['ci_low']:.1%}, {t.metadata['heldout']['ci_high']:.1%}]",
+             f"{t.metadata['heldout']['p_value']:.2g}", "{}:{}".format(t.metadata["heldout"]["seeds"][0],
+                                                                    t.metadata["heldout"]["seeds"][1] + 1))
+            for t in tickets]
+    header = ("policy", "ticket", "search", "held-out", "95% Wilson CI", "p vs base", "seeds")
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+                     for r in [header, *rows])

@@ -77,3 +77,12 @@ def holm_adjust(p_values: Sequence[float]) -> list[float]:
         running = max(running, min(1.0, (len(p_values) - rank) * p_values[i]))
         adjusted[i] = running
     return adjusted
+
+
+def sign_test(wins: int, losses: int) -> float:
+    """One-sided sign test across pairs: P(Binomial(wins + losses, 1/2) >= wins); ties dropped."""
+    if wins < 0 or losses < 0:
+        raise ValueError(f"sign_test needs counts >= 0, got {wins}, {losses}")
+    if wins + losses == 0:
+        return 1.0
+    return float(binomtest(wins, wins + losses, 0.5, alternative="greater").pvalue)

@@ -62,7 +62,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
         with _progress(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
         with _progress(evaluator, cfg.budget, f"search ({cfg.method})") as bar:
-            result = run_search(optimizer, _query_evaluator(evaluator), budget=cfg.budget,
+            result = run_search(optimizer, query_evaluator(evaluator), budget=cfg.budget,
                                 stop_after_perfect=cfg.stop_after_perfect,
                                 max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
@@ -99,7 +99,7 @@ def _progress(evaluator: Evaluator, total: int, desc: str) -> tqdm:
     return bar
 
 
-def _query_evaluator(evaluator: Evaluator):
+def query_evaluator(evaluator: Evaluator):
     def evaluate(queries):
         jobs = [(Ticket(q.ticket).id, Constant(q.ticket), q.seeds) for q in queries]
         return [EpisodeOutcome(np.array([r.ret for r in rs]), np.array([r.success for r in rs]))

@@ -2,7 +2,13 @@
 
 from goldenticket.policies.base import NoisePolicy, TicketedPolicy
 from goldenticket.policies.mlp import MLPPolicy, PolicyConfig
-from goldenticket.policies.registry import BUNDLED_DIR, load_policy, policy_names
+from goldenticket.policies.registry import (
+    BUNDLED_DIR,
+    bundled_tickets,
+    find_ticket,
+    load_policy,
+    policy_names,
+)
 
-__all__ = ["BUNDLED_DIR", "MLPPolicy", "NoisePolicy", "PolicyConfig", "load_policy",
-           "policy_names", "TicketedPolicy"]
+__all__ = ["BUNDLED_DIR", "MLPPolicy", "NoisePolicy", "PolicyConfig", "TicketedPolicy",
+           "bundled_tickets", "find_ticket", "load_policy", "policy_names"]

@@ -1,7 +1,12 @@
-"""Bundled policies, named like `metaworld/pick-place-v3/flow`, shipped inside the package."""
+"""Bundled policies, named like `metaworld/pick-place-v3/flow`, shipped inside the package.
+
+A policy name may end in `@N` to run with N denoising steps instead of the trained default,
+e.g. `metaworld/pick-place-v3/ddim@2`; the weights are the same, only inference changes.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from goldenticket.errors import UserError
@@ -16,11 +21,42 @@ def policy_names() -> list[str]:
     )
 
 
+def bundled_tickets() -> list[Path]:
+    """Golden tickets shipped beside the bundled policies (`<policy>/tickets/<id>.safetensors`)."""
+    return sorted(BUNDLED_DIR.rglob("tickets/*.safetensors"))
+
+
+def find_ticket(ref: str) -> Path:
+    """A ticket file path, or the id of a bundled ticket (as `goldenticket tickets list` shows)."""
+    path = Path(ref)
+    if path.is_file():
+        return path
+    matches = [p for p in bundled_tickets() if p.stem == ref]
+    if len(matches) != 1:
+        raise UserError(f"{ref}: no such ticket file or bundled ticket id (see `goldenticket tickets list`)")
+    return matches[0]
+
+
+def split_steps(name: str) -> tuple[str, int | None]:
+    """`"a/b/ddim@2"` -> `("a/b/ddim", 2)`; a name without `@N` -> `(name, None)`."""
+    base, at, steps = name.rpartition("@")
+    if not at:
+        return name, None
+    if not steps.isdigit() or int(steps) < 1:
+        raise UserError(f"policy {name!r}: the part after '@' must be a step count >= 1")
+    return base, int(steps)
+
+
 def load_policy(name: str) -> MLPPolicy:
-    """A bundled policy by name, or a policy directory (config.json + model.safetensors)."""
-    path = Path(name)
-    if (path / "config.json").is_file():
-        return MLPPolicy.load(path)
-    if name not in policy_names():
-        raise UserError(f"unknown policy {name!r}; bundled: {', '.join(policy_names()) or 'none'}")
-    return MLPPolicy.load(BUNDLED_DIR / name)
+    """A bundled policy by name, or a policy directory (config.json + model.safetensors);
+    an `@N` suffix sets the number of denoising steps."""
+    base, steps = split_steps(name)
+    path = Path(base)
+    if not (path / "config.json").is_file():
+        if base not in policy_names():
+            raise UserError(f"unknown policy {base!r}; run `goldenticket policies` to list them")
+        path = BUNDLED_DIR / base
+    policy = MLPPolicy.load(path)
+    if steps is None:
+        return policy
+    return MLPPolicy(dataclasses.replace(policy.cfg, name=name, steps=steps), policy.model)
