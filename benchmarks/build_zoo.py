@@ -19,11 +19,14 @@ MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3"
         "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
 HABIT = DemoStyle(grasp_offset=0.04, action_noise=0.15)
 # (demos, style); easy tasks get fewer, noisier demos, peg insertion a smaller habit spread.
+FEW_NOISY = DemoStyle(grasp_offset=0.04, action_noise=0.3)
 RECIPES = {
+    "door-open-v3": (5, FEW_NOISY),
+    "drawer-open-v3": (5, FEW_NOISY),
     "reach-v3": (20, DemoStyle(goal_offset=0.04, action_noise=0.15)),
-    "drawer-close-v3": (10, DemoStyle(grasp_offset=0.04, action_noise=0.3)),
-    "button-press-topdown-v3": (10, DemoStyle(grasp_offset=0.04, action_noise=0.3)),
-    "window-close-v3": (10, DemoStyle(grasp_offset=0.04, action_noise=0.3)),
+    "drawer-close-v3": (10, FEW_NOISY),
+    "button-press-topdown-v3": (10, FEW_NOISY),
+    "window-close-v3": (10, FEW_NOISY),
     "peg-insert-side-v3": (20, DemoStyle(grasp_offset=0.02, action_noise=0.1)),
 }
 KINDS = {"flow": 10, "ddim": 8}  # kind -> denoising steps it is trained with

@@ -22,7 +22,7 @@ from build_zoo import MT10
 
 from goldenticket.evaluation import Evaluator
 from goldenticket.noise import Constant
-from goldenticket.policies import BUNDLED_DIR
+from goldenticket.policies import BUNDLED_DIR, bundled_tickets
 from goldenticket.rollout import Engine
 from goldenticket.stats import Rate, sign_test, wilson_interval
 from goldenticket.store import RunStore
@@ -32,7 +32,7 @@ from goldenticket.workflow import SearchConfig, find_golden_tickets
 
 HERE = Path(__file__).parent
 POLICIES = ("flow", "ddim@8", "ddim@2")
-SETTINGS = dict(method="cem-racing", budget=600, seed=0, search_seeds=20, heldout=200, top_k=1)
+SETTINGS = dict(method="cem-racing", budget=800, seed=0, search_seeds=20, heldout=200, top_k=3)
 FRESH = 200  # fresh held-out seeds for each golden ticket, after the judged ones
 
 
@@ -115,7 +115,9 @@ def markdown(rows: list[dict], summary: dict, wall: float) -> str:
 
 
 def ship(summaries: list[dict]) -> int:
-    """Copy each golden ticket (with its fresh check) beside its bundled policy."""
+    """Replace the bundled tickets with this run's golden ones (each with its fresh check)."""
+    for old in bundled_tickets():
+        old.unlink()
     shipped = 0
     for s in summaries:
         best = s["golden"]

@@ -28,7 +28,7 @@ from goldenticket.tickets import Ticket
 from goldenticket.workflow import query_evaluator
 
 HERE = Path(__file__).parent
-POLICIES = ("metaworld/push-v3/flow", "metaworld/drawer-open-v3/flow")
+POLICIES = ("metaworld/reach-v3/ddim@8", "metaworld/pick-place-v3/flow")
 METHODS = {"rs": {"batch_size": 20}, "cem": {"population": 20}, "zos": {"candidates": 10},
            "cem-racing": {"population": 20}}
 SEEDS = (0, 1, 2)

@@ -70,3 +70,31 @@ def test_denoising_steps_set_at_load_time(rng):
     for bad in ("metaworld/pick-place-v3/ddim@0", "metaworld/pick-place-v3/ddim@x"):
         with pytest.raises(UserError, match="step count"):
             load_policy(bad)
+
+
+def test_zoo_ships_at_least_twenty_policies_with_measured_cards():
+    import json
+
+    from goldenticket.policies import BUNDLED_DIR, policy_names
+
+    assert len(policy_names()) >= 20
+    for name in policy_names():
+        card = json.loads((BUNDLED_DIR / name / "card.json").read_text())
+        assert card["policy"] == name and card["base"]["n"] == card["zero"]["n"] == 200
+
+
+def test_a_shipped_ticket_reproduces_its_recorded_heldout_success():
+    from goldenticket.noise import Constant
+    from goldenticket.policies import bundled_tickets
+    from goldenticket.rollout import Episode, rollout
+    from goldenticket.tasks import get_task
+    from goldenticket.tickets import Ticket
+
+    tickets = [Ticket.load(p) for p in bundled_tickets()]
+    assert tickets, "no golden tickets are bundled"
+    ticket = min(tickets, key=lambda t: ("reach" not in t.metadata["task"], t.id))  # shortest episodes
+    meta = ticket.metadata
+    seeds = range(meta["heldout"]["seeds"][0], meta["heldout"]["seeds"][1] + 1)
+    results = rollout(load_policy(meta["policy"]), get_task(meta["task"]),
+                      [Episode(Constant(ticket.noise), s) for s in seeds])
+    assert np.mean([r.success for r in results]) == meta["heldout"]["success_rate"]

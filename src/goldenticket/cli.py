@@ -159,13 +159,12 @@ def _train(args) -> int:
 
 def _policies(args) -> int:
     from goldenticket.policies import BUNDLED_DIR, policy_names
-    from goldenticket.report import verdict_table
+    from goldenticket.report import policy_table
 
-    cards = {name: json.loads((BUNDLED_DIR / name / "card.json").read_text())
-             for name in policy_names()}
-    rows = {f"{name} {noise}": card[noise] for name, card in cards.items() for noise in ("base", "zero")}
-    print(verdict_table(rows, title="policy and noise"))
-    print(f"Held-out success measured when each policy was trained; cards in {BUNDLED_DIR}.")
+    cards = [json.loads((BUNDLED_DIR / name / "card.json").read_text()) for name in policy_names()]
+    print(policy_table(cards))
+    print(f"Held-out success (95% Wilson interval) measured when each policy was trained; model "
+          f"cards in {BUNDLED_DIR}. DDIM policies run with another step count as NAME@N.")
     return 0
 
 

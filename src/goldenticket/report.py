@@ -32,15 +32,32 @@ def summary_text(summary: dict) -> str:
     return f"{verdict_table(rows)}\n\n{line}\n{summary['p_value_note']}"
 
 
-def ticket_table(tickets: list) -> str:
-    """One line per shipped ticket: policy, id, search score, held-out success and seeds."""
-    rows = [(t.metadata["policy"], t.id, f"{t.metadata['search_score']:.0%}",
-             f"{t.metadata['heldout']['success_rate']:.1%}",
-             f"[{t.metadata['heldout']['ci_low']:.1%}, {t.metadata['heldout']['ci_high']:.1%}]",
-             f"{t.metadata['heldout']['p_value']:.2g}", "{}:{}".format(t.metadata["heldout"]["seeds"][0],
-                                                                    t.metadata["heldout"]["seeds"][1] + 1))
-            for t in tickets]
-    header = ("policy", "ticket", "search", "held-out", "95% Wilson CI", "p vs base", "seeds")
+def _columns(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
     return "\n".join("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
                      for r in [header, *rows])
+
+
+def _rate(r: dict) -> str:
+    return f"{r['success_rate']:6.1%} [{r['ci_low']:.0%}, {r['ci_high']:.0%}]"
+
+
+def policy_table(cards: list[dict]) -> str:
+    """One line per bundled policy: its base and zero-ticket held-out success."""
+    rows = [(c["policy"], str(c["demos"]), _rate(c["base"]), _rate(c["zero"]), str(c["base"]["n"]))
+            for c in cards]
+    return _columns(("policy", "demos", "base", "zero ticket", "n"), rows)
+
+
+def ticket_table(tickets: list) -> str:
+    """One line per shipped ticket: policy, id, search score, held-out success and its seeds, and
+    success on fresh held-out seeds where measured."""
+    rows = []
+    for t in tickets:
+        held = t.metadata["heldout"]
+        fresh = t.metadata.get("fresh")
+        rows.append((t.metadata["policy"], t.id, f"{t.metadata['search_score']:.0%}", _rate(held),
+                     f"{held['p_value']:.2g}", f"{held['seeds'][0]}:{held['seeds'][1] + 1}",
+                     _rate(fresh) if fresh else "-"))
+    return _columns(("policy", "ticket", "search", "held-out success", "p vs base", "seeds",
+                     "fresh seeds"), rows)

@@ -1,0 +1,44 @@
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
+import existence  # noqa: E402
+import search_methods  # noqa: E402
+
+
+def _rate(p, n=200):
+    return {"success_rate": p, "ci_low": p - 0.05, "ci_high": p + 0.05, "n": n}
+
+
+def _row(base, zero, best, p_base, p_zero):
+    return {"task": "t", "policy": "flow", "base": _rate(base), "zero": _rate(zero), "best": _rate(best),
+            "p_vs_base": p_base, "p_vs_zero": p_zero, "golden": p_base < 0.05, "fresh": None,
+            "search": "cem-racing, 800 episodes"}
+
+
+def test_existence_summary_counts_gains_and_sign_test():
+    rows = [_row(0.5, 0.6, 0.7, 0.001, 0.04), _row(0.5, 0.5, 0.5, 1.0, 1.0),
+            _row(0.6, 0.7, 0.55, 0.9, 0.99), _row(0.3, 0.3, 0.4, 0.01, 0.2)]
+    s = existence.summary_rows(rows)
+    assert s["vs_base"] | {"win_rate_ci": None} == {
+        "significant": 2, "wins": 2, "losses": 1, "ties": 1, "sign_test_p": 0.5,
+        "win_rate_ci": None, "mean_gain": pytest.approx(0.0625)}
+    assert s["vs_zero"]["significant"] == 1 and s["vs_zero"]["losses"] == 1
+    table = existence.markdown(rows, s, 60.0)
+    assert table.count("\n| t | flow |") == 4 and "**golden**" in table and "2 of 4 pairs" in table
+
+
+def test_existence_pairs_cover_flow_and_both_ddim_step_counts():
+    task = "metaworld/reach-v3"
+    assert existence.pairs(("reach-v3",)) == [(task, f"{task}/flow"), (task, f"{task}/ddim@8"),
+                                              (task, f"{task}/ddim@2")]
+
+
+def test_search_method_winner_per_budget():
+    n = len(search_methods.CHECKPOINTS)
+    results = {"p": {"base": 0.5} | {m: [[0.5] * n] for m in search_methods.METHODS}}
+    results["p"]["zos"] = [[0.6] * n]
+    results["p"]["cem"] = [[0.4] + [0.7] * (n - 1)]
+    assert search_methods.winners(results) == ["zos"] + ["cem"] * (n - 1)
