@@ -68,25 +68,28 @@ def compare(policy: str, runs: Path, workers: int) -> dict:
     return out
 
 
-def winners(results: dict) -> list[str]:
-    """Per checkpoint, the method with the highest mean held-out success over policies and seeds."""
+def winners(results: dict) -> list[tuple[str, float]]:
+    """Per checkpoint, the method with the highest mean held-out success over policies and seeds,
+    with that mean."""
     means = {m: np.mean([np.mean(r[m], axis=0) for r in results.values()], axis=0) for m in METHODS}
-    return [max(METHODS, key=lambda m: means[m][i]) for i in range(len(CHECKPOINTS))]
+    best = [max(METHODS, key=lambda m: means[m][i]) for i in range(len(CHECKPOINTS))]
+    return [(m, float(means[m][i])) for i, m in enumerate(best)]
 
 
 def markdown(results: dict) -> str:
     head = " | ".join(f"{b} ep" for b in CHECKPOINTS)
     lines = [f"| policy | method | {head} |", "|---|---|" + "---|" * len(CHECKPOINTS)]
     for policy, r in results.items():
-        lines.append(f"| {policy} | base (Gaussian) | " + f"{r['base']:.0%} | " * len(CHECKPOINTS))
+        lines.append(f"| {policy} | base (Gaussian) |" + f" {r['base']:.0%} |" * len(CHECKPOINTS))
         for m in METHODS:
             mean, low, high = np.mean(r[m], 0), np.min(r[m], 0), np.max(r[m], 0)
             cells = [f"{a:.0%} ({lo:.0%}-{hi:.0%})" for a, lo, hi in zip(mean, low, high, strict=True)]
             lines.append(f"| {policy} | {m} | " + " | ".join(cells) + " |")
     lines += ["", f"Mean over {len(SEEDS)} search seeds (min-max) of the best-so-far ticket's success on "
               f"{HELDOUT} held-out seeds; search on {SEARCH_SEEDS} search seeds.",
-              "Best mean over both policies, per budget: " +
-              ", ".join(f"{b} ep: **{w}**" for b, w in zip(CHECKPOINTS, winners(results), strict=True))]
+              f"Best mean over both policies (base: {np.mean([r['base'] for r in results.values()]):.1%}), "
+              "per budget: " + ", ".join(f"{b} ep: **{m}** {v:.1%}"
+                                         for b, (m, v) in zip(CHECKPOINTS, winners(results), strict=True))]
     return "\n".join(lines) + "\n"
 
 

@@ -41,4 +41,4 @@ def test_search_method_winner_per_budget():
     results = {"p": {"base": 0.5} | {m: [[0.5] * n] for m in search_methods.METHODS}}
     results["p"]["zos"] = [[0.6] * n]
     results["p"]["cem"] = [[0.4] + [0.7] * (n - 1)]
-    assert search_methods.winners(results) == ["zos"] + ["cem"] * (n - 1)
+    assert search_methods.winners(results) == [("zos", 0.6)] + [("cem", 0.7)] * (n - 1)
