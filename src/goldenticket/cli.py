@@ -188,8 +188,10 @@ def _tickets_list() -> int:
 
     paths = bundled_tickets()
     print(ticket_table([Ticket.load(p) for p in paths]) if paths else "No bundled tickets.")
-    print("Reproduce one: goldenticket evaluate --policy POLICY --task TASK --ticket ID --seeds A:B "
-          "(the seeds shown give the recorded numbers; other held-out seeds give fresh ones).")
+    print("search: success on the search seeds; p vs base: Holm-adjusted over the tickets judged "
+          "with it; fresh seeds: the 200 held-out seeds after those shown.\n"
+          "Reproduce one: goldenticket evaluate --policy POLICY --task TASK --ticket ID --seeds A:B "
+          "(the seeds shown give the recorded success; other held-out seeds give fresh numbers).")
     return 0
 
 
