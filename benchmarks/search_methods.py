@@ -101,13 +101,14 @@ def plot(results: dict, path: Path) -> None:
 
     fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 4), sharey=True)
     for ax, (policy, r) in zip(np.atleast_1d(axes), results.items(), strict=True):
-        for m in METHODS:
+        for m, style in zip(METHODS, ("-o", "--s", "-^", "-D"), strict=True):  # RS and CEM may coincide
             runs = np.array(r[m])
-            ax.plot(CHECKPOINTS, runs.mean(0), marker="o", label=m)
+            ax.plot(CHECKPOINTS, runs.mean(0), style, label=m)
             ax.fill_between(CHECKPOINTS, runs.min(0), runs.max(0), alpha=0.15)
         ax.axhline(r["base"], color="grey", linestyle="--", label="base (Gaussian)")
         ax.set(xscale="log", xticks=CHECKPOINTS, xticklabels=[str(b) for b in CHECKPOINTS],
                title=policy, xlabel="search episodes")
+        ax.minorticks_off()
     np.atleast_1d(axes)[0].set_ylabel(f"held-out success ({HELDOUT} seeds)")
     np.atleast_1d(axes)[0].legend()
     fig.tight_layout()
