@@ -29,7 +29,7 @@ RECIPES = {
     "window-close-v3": (10, FEW_NOISY),
     "peg-insert-side-v3": (20, DemoStyle(grasp_offset=0.02, action_noise=0.1)),
 }
-KINDS = {"flow": 10, "ddim": 8}  # kind -> denoising steps it is trained with
+TRAINED_STEPS = {"flow": 10, "ddim": 8}  # kind -> denoising steps it is trained with
 TRAIN_STEPS = 20_000
 
 
@@ -37,7 +37,7 @@ def build(job: tuple[str, str]) -> str:
     task, kind = job
     demos, style = RECIPES.get(task, (20, HABIT))
     card = build_policy(f"metaworld/{task}", kind, BUNDLED_DIR / "metaworld" / task / kind,
-                        n_demos=demos, style=style, steps=TRAIN_STEPS, denoise_steps=KINDS[kind])
+                        n_demos=demos, style=style, steps=TRAIN_STEPS, denoise_steps=TRAINED_STEPS[kind])
     base, zero = card["base"]["success_rate"], card["zero"]["success_rate"]
     return f"{card['policy']}: base {base:.1%}, zero {zero:.1%}"
 
@@ -47,7 +47,7 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2, help="policies trained at once (1 core each)")
     parser.add_argument("--only", nargs="*", choices=MT10, default=MT10)
     args = parser.parse_args()
-    todo = [(t, k) for t in args.only for k in KINDS
+    todo = [(t, k) for t in args.only for k in TRAINED_STEPS
             if not (BUNDLED_DIR / "metaworld" / t / k / "card.json").is_file()]
     print(f"{len(todo)} policies to train", flush=True)
     with mp.get_context("spawn").Pool(args.jobs) as pool:

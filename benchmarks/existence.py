@@ -6,8 +6,9 @@
 One pair is a bundled policy on its task: flow (10 Euler steps), DDIM with 8 steps and DDIM
 with 2 steps (same weights). Each pair runs `find_golden_tickets` with the settings below into
 `--runs/<pair>` (resumable per episode), so the table regenerates from scratch with the same
-numbers. The search's single best ticket is judged on held-out seeds against the base policy and
-the zero ticket; a golden ticket is then re-measured on fresh held-out seeds it was never judged on.
+numbers. The search's top tickets are judged on held-out seeds against the base policy and the
+zero ticket; the best one, if golden, is then re-measured on fresh held-out seeds it was never
+judged on.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ from build_zoo import MT10
 from goldenticket.evaluation import Evaluator
 from goldenticket.noise import Constant
 from goldenticket.policies import BUNDLED_DIR, bundled_tickets
+from goldenticket.policies.registry import split_steps
+from goldenticket.report import rate_text
 from goldenticket.rollout import Engine
 from goldenticket.stats import Rate, sign_test, wilson_interval
 from goldenticket.store import RunStore
@@ -93,17 +96,14 @@ def summary_rows(rows: list[dict]) -> dict:
 
 
 def markdown(rows: list[dict], summary: dict, wall: float) -> str:
-    def rate(r):
-        return f"{r['success_rate']:.1%} [{r['ci_low']:.0%}, {r['ci_high']:.0%}]"
-
     lines = ["| task | policy | base | zero ticket | best ticket | p vs base | p vs zero | fresh seeds "
              "| search |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         fresh = "-" if r["fresh"] is None else f"{r['fresh']['success_rate']:.1%}" + \
             ("" if r["fresh"]["inside_recorded_interval"] else " (outside)")
         star = " **golden**" if r["golden"] else ""
-        lines.append(f"| {r['task']} | {r['policy']} | {rate(r['base'])} | {rate(r['zero'])} | "
-                     f"{rate(r['best'])}{star} | {r['p_vs_base']:.2g} | {r['p_vs_zero']:.2g} | "
+        lines.append(f"| {r['task']} | {r['policy']} | {rate_text(r['base'])} | {rate_text(r['zero'])} | "
+                     f"{rate_text(r['best'])}{star} | {r['p_vs_base']:.2g} | {r['p_vs_zero']:.2g} | "
                      f"{fresh} | {r['search']} |")
     lines.append("")
     for ref in ("base", "zero"):
@@ -140,7 +140,7 @@ def ship(summaries: list[dict]) -> int:
             continue
         ticket = Ticket.load(best["ticket_path"])
         ticket.metadata["fresh"] = best["fresh"]
-        policy_dir = s["policy"].split("@")[0]
+        policy_dir, _ = split_steps(s["policy"])
         ticket.save(BUNDLED_DIR / policy_dir / "tickets" / f"{ticket.id}.safetensors")
         shipped += 1
     return shipped

@@ -2,8 +2,8 @@
 
     python benchmarks/search_methods.py       # writes benchmarks/results/search_methods.{md,json,png}
 
-RS, CEM, ZOS and CEM+racing on two bundled policies, three search seeds each, with the same
-populations (20 tickets per CEM iteration or RS batch). At each checkpoint budget the search is
+RS, CEM, ZOS and CEM+racing on two bundled policies, three search seeds each (20 tickets per
+RS batch or CEM generation, 10 ZOS candidates per step). At each checkpoint budget the search is
 replayed from its seed with that budget (recorded episodes are read back, not re-run), and its
 best ticket (by search score) is rolled out on held-out seeds. Resumable: all episodes of one
 policy share a run store under `--runs`.
@@ -36,9 +36,10 @@ CHECKPOINTS = (50, 100, 200, 400)  # search episodes
 SEARCH_SEEDS, HELDOUT = 10, 100
 
 
-def best_at(evaluator: Evaluator, policy: str, method: str, seed: int, budget: int) -> Ticket:
+def best_at(evaluator: Evaluator, noise_shape: tuple[int, int], method: str, seed: int,
+            budget: int) -> Ticket:
     """The best ticket a search with this budget ends with (replayed from its seed)."""
-    optimizer = make_optimizer(method, load_policy(policy).noise_shape, seeds_in("search", SEARCH_SEEDS),
+    optimizer = make_optimizer(method, noise_shape, seeds_in("search", SEARCH_SEEDS),
                                np.random.default_rng(seed), **METHODS[method])
     result = run_search(optimizer, query_evaluator(evaluator), budget=budget)
     top = result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1)
@@ -53,7 +54,7 @@ def held_out(evaluator: Evaluator, ticket: Ticket | None) -> float:
 
 def compare(policy: str, runs: Path, workers: int) -> dict:
     """{"base": rate, method: [[rate per checkpoint] per seed]} for one policy."""
-    task = get_task(policy.rsplit("/", 1)[0])
+    task, noise_shape = get_task(policy.rsplit("/", 1)[0]), load_policy(policy).noise_shape
     runs.mkdir(parents=True, exist_ok=True)
     out = {}
     with Engine(policy, task, workers=workers) as engine, \
@@ -61,7 +62,7 @@ def compare(policy: str, runs: Path, workers: int) -> dict:
         evaluator = Evaluator(engine, store)
         out["base"] = held_out(evaluator, None)
         for method in METHODS:
-            out[method] = [[held_out(evaluator, best_at(evaluator, policy, method, s, b))
+            out[method] = [[held_out(evaluator, best_at(evaluator, noise_shape, method, s, b))
                             for b in CHECKPOINTS] for s in SEEDS]
             print(f"{policy} {method}: mean held-out {np.mean(out[method], axis=0).round(3).tolist()}",
                   flush=True)

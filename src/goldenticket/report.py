@@ -38,14 +38,15 @@ def _columns(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
                      for r in [header, *rows])
 
 
-def _rate(r: dict) -> str:
-    return f"{r['success_rate']:6.1%} [{r['ci_low']:.0%}, {r['ci_high']:.0%}]"
+def rate_text(r: dict, width: int = 0) -> str:
+    """`56.5% [50%, 63%]`: a success rate with its 95% Wilson interval."""
+    return f"{r['success_rate']:{width}.1%} [{r['ci_low']:.0%}, {r['ci_high']:.0%}]"
 
 
 def policy_table(cards: list[dict]) -> str:
     """One line per bundled policy: its base and zero-ticket held-out success."""
-    rows = [(c["policy"], str(c["demos"]), _rate(c["base"]), _rate(c["zero"]), str(c["base"]["n"]))
-            for c in cards]
+    rows = [(c["policy"], str(c["demos"]), rate_text(c["base"], 6), rate_text(c["zero"], 6),
+             str(c["base"]["n"])) for c in cards]
     return _columns(("policy", "demos", "base", "zero ticket", "n"), rows)
 
 
@@ -56,8 +57,8 @@ def ticket_table(tickets: list) -> str:
     for t in tickets:
         held = t.metadata["heldout"]
         fresh = t.metadata.get("fresh")
-        rows.append((t.metadata["policy"], t.id, f"{t.metadata['search_score']:.0%}", _rate(held),
+        rows.append((t.metadata["policy"], t.id, f"{t.metadata['search_score']:.0%}", rate_text(held, 6),
                      f"{held['p_value']:.2g}", f"{held['seeds'][0]}:{held['seeds'][1] + 1}",
-                     _rate(fresh) if fresh else "-"))
+                     rate_text(fresh, 6) if fresh else "-"))
     return _columns(("policy", "ticket", "search", "held-out success", "p vs base", "seeds",
                      "fresh seeds"), rows)
