@@ -1,6 +1,7 @@
 """Train the MT10 policy zoo into the package: a flow and a DDIM policy per task.
 
     python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]
+    python benchmarks/build_zoo.py --remeasure   # re-measure every card's base and zero ticket
 
 Resumable: a policy folder that already has its card.json is kept. Each recipe says why the
 policy is imperfect (few, noisy, multimodal demonstrations); the model card records it with the
@@ -10,10 +11,12 @@ measured held-out success and the exact `goldenticket train` command that rebuil
 from __future__ import annotations
 
 import argparse
+import json
 import multiprocessing as mp
 
-from goldenticket.policies import BUNDLED_DIR
-from goldenticket.train import DemoStyle, build_policy
+from goldenticket.policies import BUNDLED_DIR, MLPPolicy
+from goldenticket.tasks import get_task
+from goldenticket.train import DemoStyle, build_policy, measure, write_card
 
 MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
         "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
@@ -42,11 +45,27 @@ def build(job: tuple[str, str]) -> str:
     return f"{card['policy']}: base {base:.1%}, zero {zero:.1%}"
 
 
+def remeasure(tasks: tuple[str, ...], workers: int) -> None:
+    """Measure each bundled card's base and zero-ticket success again with today's code."""
+    for task in tasks:
+        for kind in TRAINED_STEPS:
+            folder = BUNDLED_DIR / "metaworld" / task / kind
+            card = json.loads((folder / "card.json").read_text())
+            card |= measure(folder, get_task(f"metaworld/{task}"), card["base"]["n"], workers)
+            write_card(folder, card, MLPPolicy.load(folder).cfg)
+            print(f"{card['policy']}: base {card['base']['success_rate']:.1%}, "
+                  f"zero {card['zero']['success_rate']:.1%}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=2, help="policies trained at once (1 core each)")
     parser.add_argument("--only", nargs="*", choices=MT10, default=MT10)
+    parser.add_argument("--remeasure", action="store_true",
+                        help="re-measure the cards of the bundled policies instead of training")
     args = parser.parse_args()
+    if args.remeasure:
+        return remeasure(args.only, args.jobs)
     todo = [(t, k) for t in args.only for k in TRAINED_STEPS
             if not (BUNDLED_DIR / "metaworld" / t / k / "card.json").is_file()]
     print(f"{len(todo)} policies to train", flush=True)

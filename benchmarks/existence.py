@@ -47,8 +47,8 @@ def run_pair(task: str, policy: str, runs: Path, workers: int) -> dict:
     """Search and judge one pair; a golden ticket is re-measured on fresh held-out seeds."""
     out = runs / policy.removeprefix("metaworld/").replace("/", "_")
     summary = find_golden_tickets(SearchConfig(policy, task, workers=workers, **SETTINGS), out)
-    best = summary["golden"]
-    if best["verdict"] == "golden":
+    best = summary["best"]
+    if best["golden"]:
         best["fresh"] = fresh_check(Ticket.load(best["ticket_path"]), policy, task, out, workers)
     return summary
 
@@ -65,12 +65,12 @@ def fresh_check(ticket: Ticket, policy: str, task: str, out: Path, workers: int)
 
 
 def table_row(s: dict) -> dict:
-    best = s["golden"]
+    best = s["best"]
     return {"task": s["task"].removeprefix("metaworld/"), "policy": s["policy"].rsplit("/", 1)[1],
             "base": s["base"], "zero": s["zero"], "ticket": best["ticket_id"],
             "best": {k: best[k] for k in ("success_rate", "ci_low", "ci_high", "n")},
             "p_vs_base": best["p_value"], "p_vs_zero": best["p_vs_zero"],
-            "golden": best["verdict"] == "golden", "fresh": best.get("fresh"),
+            "golden": best["golden"], "fresh": best.get("fresh"),
             "search": f"{s['method']}, {s['search_episodes']} episodes",
             "stopped_because": s["stopped_because"]}
 
@@ -135,8 +135,8 @@ def ship(summaries: list[dict]) -> int:
         old.unlink()
     shipped = 0
     for s in summaries:
-        best = s["golden"]
-        if best["verdict"] != "golden":
+        best = s["best"]
+        if not best["golden"]:
             continue
         ticket = Ticket.load(best["ticket_path"])
         ticket.metadata["fresh"] = best["fresh"]

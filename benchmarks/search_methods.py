@@ -19,7 +19,7 @@ import numpy as np
 
 from goldenticket.evaluation import Evaluator
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.policies import load_policy
+from goldenticket.policies import MLPPolicy, load_policy
 from goldenticket.rollout import Engine
 from goldenticket.search import make_optimizer, run_search
 from goldenticket.store import RunStore
@@ -36,14 +36,14 @@ CHECKPOINTS = (50, 100, 200, 400)  # search episodes
 SEARCH_SEEDS, HELDOUT = 10, 100
 
 
-def best_at(evaluator: Evaluator, noise_shape: tuple[int, int], method: str, seed: int,
-            budget: int) -> Ticket:
+def best_at(evaluator: Evaluator, policy: MLPPolicy, method: str, seed: int, budget: int) -> Ticket:
     """The best ticket a search with this budget ends with (replayed from its seed)."""
-    optimizer = make_optimizer(method, noise_shape, seeds_in("search", SEARCH_SEEDS),
+    optimizer = make_optimizer(method, policy.noise_shape, seeds_in("search", SEARCH_SEEDS),
                                np.random.default_rng(seed), **METHODS[method])
-    result = run_search(optimizer, query_evaluator(evaluator), budget=budget)
+    fingerprint = policy.fingerprint()
+    result = run_search(optimizer, query_evaluator(evaluator, fingerprint), budget=budget)
     top = result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1)
-    return Ticket(top[0].ticket)
+    return Ticket(top[0].ticket, {"policy_fingerprint": fingerprint})
 
 
 def held_out(evaluator: Evaluator, ticket: Ticket | None) -> float:
@@ -54,7 +54,7 @@ def held_out(evaluator: Evaluator, ticket: Ticket | None) -> float:
 
 def compare(policy: str, runs: Path, workers: int) -> dict:
     """{"base": rate, method: [[rate per checkpoint] per seed]} for one policy."""
-    task, noise_shape = get_task(policy.rsplit("/", 1)[0]), load_policy(policy).noise_shape
+    task, loaded = get_task(policy.rsplit("/", 1)[0]), load_policy(policy)
     runs.mkdir(parents=True, exist_ok=True)
     out = {}
     with Engine(policy, task, workers=workers) as engine, \
@@ -62,7 +62,7 @@ def compare(policy: str, runs: Path, workers: int) -> dict:
         evaluator = Evaluator(engine, store)
         out["base"] = held_out(evaluator, None)
         for method in METHODS:
-            out[method] = [[held_out(evaluator, best_at(evaluator, noise_shape, method, s, b))
+            out[method] = [[held_out(evaluator, best_at(evaluator, loaded, method, s, b))
                             for b in CHECKPOINTS] for s in SEEDS]
             print(f"{policy} {method}: mean held-out {np.mean(out[method], axis=0).round(3).tolist()}",
                   flush=True)

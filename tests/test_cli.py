@@ -35,11 +35,11 @@ def search_run(policy_dir, tmp_path_factory):
 def test_search_writes_summary_tickets_and_store(search_run):
     summary = json.loads((search_run / "summary.json").read_text())
     assert summary["task"] == TASK and summary["search_episodes"] <= 12
-    for key in ("base", "zero", "golden"):
+    for key in ("base", "zero", "best"):
         assert {"success_rate", "ci_low", "ci_high", "n"} <= summary[key].keys()
-    assert {"ticket_id", "p_value", "verdict", "ticket_path"} <= summary["golden"].keys()
-    ticket = Ticket.load(summary["golden"]["ticket_path"])
-    assert ticket.id == summary["golden"]["ticket_id"]
+    assert {"ticket_id", "p_value", "verdict", "ticket_path"} <= summary["best"].keys()
+    ticket = Ticket.load(summary["best"]["ticket_path"])
+    assert ticket.id == summary["best"]["ticket_id"]
     assert ticket.metadata["heldout"]["n"] == 4
     assert (search_run / "run.sqlite").is_file()
 
@@ -48,7 +48,7 @@ def test_same_command_same_numbers_in_process_or_pool(search_run, policy_dir, tm
     assert _search(policy_dir, tmp_path, workers=2) == 0
     first = json.loads((search_run / "summary.json").read_text())
     second = json.loads((tmp_path / "summary.json").read_text())
-    strip = lambda s: {k: v for k, v in s.items() if k not in ("golden", "tickets")}  # noqa: E731
+    strip = lambda s: {k: v for k, v in s.items() if k not in ("best", "tickets")}  # noqa: E731
     assert strip(first) == strip(second)
     assert [t["ticket_id"] for t in first["tickets"]] == [t["ticket_id"] for t in second["tickets"]]
 
@@ -60,7 +60,7 @@ def test_rerun_resumes_from_the_store(search_run, policy_dir):
 
 
 def test_evaluate_json_and_tickets_show(search_run, policy_dir, capsys):
-    path = json.loads((search_run / "summary.json").read_text())["golden"]["ticket_path"]
+    path = json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"]
     capsys.readouterr()
     assert main(["evaluate", "--policy", policy_dir, "--task", TASK, "--ticket", path,
                  "--seeds", "1000100:1000103", "--workers", "1", "--json"]) == 0
@@ -87,7 +87,7 @@ def _bad_ticket_files(tmp_path):
 
 def test_bad_inputs_exit_2_with_one_line(policy_dir, search_run, tmp_path):
     files = _bad_ticket_files(tmp_path)
-    ticket = json.loads((search_run / "summary.json").read_text())["golden"]["ticket_path"]
+    ticket = json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"]
     evaluate = ["evaluate", "--policy", policy_dir, "--task", TASK, "--seeds", "1000000:1000002"]
     cases = {
         "unknown policy": ["evaluate", "--policy", "nope/x/flow", "--task", TASK, "--seeds", "0:2"],
@@ -128,7 +128,7 @@ def test_bundled_tickets_are_listed_and_found_by_id(search_run, capsys, monkeypa
 
     monkeypatch.setattr(registry, "BUNDLED_DIR", tmp_path)
     assert main(["tickets", "list"]) == 0 and "No bundled tickets" in capsys.readouterr().out
-    ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["golden"]["ticket_path"])
+    ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"])
     ticket.save(tmp_path / "a" / "flow" / "tickets" / f"{ticket.id}.safetensors")
     assert main(["tickets", "list"]) == 0
     listing = capsys.readouterr().out

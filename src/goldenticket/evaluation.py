@@ -71,7 +71,8 @@ class Judged:
     def to_dict(self) -> dict:
         out = self.rate.to_dict()
         if self.p_value is not None:
-            out |= {"p_value": self.p_value, "verdict": "golden" if self.golden else "not golden"}
+            out |= {"p_value": self.p_value, "golden": self.golden,
+                    "verdict": "golden" if self.golden else "not golden"}
         if self.p_vs_zero is not None:
             out["p_vs_zero"] = self.p_vs_zero
         return out
@@ -93,3 +94,10 @@ def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence
             judged[label].p_vs_zero = paired_exact_test(judged[label].successes,
                                                         judged["zero"].successes)
     return judged
+
+
+def p_value_note(n_tickets: int) -> str:
+    """How to read the p-values of a verdict over `n_tickets` tickets."""
+    return ("p-values: one-sided exact McNemar (sign) test on the paired held-out seeds, ticket "
+            "better than base (p vs base) or than the zero ticket (p vs zero), Holm-adjusted over "
+            f"the {n_tickets} tickets tested. 'golden' means p vs base < {ALPHA}.")

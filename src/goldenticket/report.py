@@ -20,8 +20,8 @@ def summary_text(summary: dict) -> str:
     """The demo/search table plus a one-line plain verdict."""
     rows = {"base": summary["base"], "zero ticket": summary["zero"]}
     rows |= {f"ticket {t['ticket_id']}": t for t in summary["tickets"]}
-    golden = summary["golden"]
-    if golden["verdict"] == "golden":
+    golden = summary["best"]
+    if golden["golden"]:
         line = (f"Golden ticket {golden['ticket_id']}: {golden['success_rate']:.1%} vs base "
                 f"{summary['base']['success_rate']:.1%} on {golden['n']} held-out seeds "
                 f"(p = {golden['p_value']:.3g}); saved to {golden['ticket_path']}")

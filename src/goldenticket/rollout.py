@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from goldenticket.errors import UserError
 from goldenticket.noise import NoiseSource
 from goldenticket.policies import NoisePolicy, load_policy
 from goldenticket.tasks import OBJECTIVES, Task, get_task
@@ -89,6 +90,8 @@ class Engine:
 
     def __init__(self, policy_name: str, task: Task, *, objective: str = "success",
                  workers: int = 1, shard_size: int = 32):
+        if workers < 1:
+            raise UserError(f"--workers must be >= 1, got {workers}")
         self.policy = load_policy(policy_name) if workers == 1 else None
         self.task, self.objective, self.shard_size = task, objective, shard_size
         self._envs: list = []

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import json
 import sqlite3
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,32 +57,56 @@ def _row(values: tuple) -> EpisodeRow:
 
 
 class RunStore:
-    """SQLite-backed record of a run. Re-recording an episode replaces it, so resuming is safe."""
+    """SQLite-backed record of a run. Re-recording an episode replaces it, so resuming is safe.
+
+    Several processes may share one store: writes are transactions that wait for each other.
+    Every SQLite or file-system failure becomes a one-line UserError; what was committed stays.
+    """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            self._con = sqlite3.connect(self.path)
-        except sqlite3.Error as e:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._con = sqlite3.connect(self.path, timeout=60, isolation_level=None)
+        except (OSError, sqlite3.Error) as e:
             raise UserError(f"{self.path}: cannot open run store ({e})") from None
         try:
-            problem = self._schema_problem()
-        except sqlite3.DatabaseError as e:
-            problem = f"not a usable SQLite run store ({e})"
+            with self._transaction():
+                problem = self._schema_problem()
+        except UserError:
+            self._con.close()
+            raise
         if problem:
             self._con.close()
             raise UserError(f"{self.path}: {problem}")
+
+    @contextmanager
+    def _transaction(self, mode: str = "IMMEDIATE") -> Iterator[sqlite3.Connection]:
+        """BEGIN ... COMMIT (ROLLBACK on error), SQLite errors as UserError; IMMEDIATE takes the
+        write lock at once, DEFERRED (for reads) only when needed."""
+        try:
+            self._con.execute(f"BEGIN {mode}")
+            try:
+                yield self._con
+                self._con.execute("COMMIT")
+            except BaseException:
+                self._con.execute("ROLLBACK")
+                raise
+        except sqlite3.DatabaseError as e:
+            raise UserError(f"{self.path}: run store failed ({e}); what was recorded before is kept"
+                            " (if the file is damaged, move it away to start afresh)") from None
 
     def _schema_problem(self) -> str | None:
         """Create the schema in a new file; say what is wrong with a file that is not a store."""
         version = self._con.execute("PRAGMA user_version").fetchone()[0]
         if version == _VERSION:
-            return None
+            check = self._con.execute("PRAGMA quick_check").fetchone()[0]
+            return None if check == "ok" else f"run store is damaged ({check}); move it away to start afresh"
         tables = self._con.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
         if version != 0 or tables:
             return "SQLite file is not a goldenticket run store"
-        self._con.executescript(f"BEGIN; {_SCHEMA} PRAGMA user_version = {_VERSION}; COMMIT;")
+        for statement in [*_SCHEMA.split(";")[:-1], f"PRAGMA user_version = {_VERSION}"]:
+            self._con.execute(statement)  # not executescript: it would commit mid-transaction
         return None
 
     def close(self) -> None:
@@ -93,21 +118,25 @@ class RunStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def set_config(self, config: dict) -> None:
-        """Store the run's config (JSON), replacing any earlier one."""
-        with self._con:
-            self._con.execute(
-                "INSERT OR REPLACE INTO config VALUES (0, ?)", (json.dumps(config, sort_keys=True),)
-            )
+    def claim_config(self, config: dict) -> bool:
+        """Store `config` in a store that has none; True if the stored config now equals it.
+        One transaction, so two processes starting on one store agree on its config."""
+        with self._transaction() as con:
+            row = con.execute("SELECT value FROM config").fetchone()
+            if row is None:
+                con.execute("INSERT INTO config VALUES (0, ?)", (json.dumps(config, sort_keys=True),))
+                return True
+        return json.loads(row[0]) == json.loads(json.dumps(config))
 
     def get_config(self) -> dict | None:
-        row = self._con.execute("SELECT value FROM config").fetchone()
+        with self._transaction("DEFERRED") as con:
+            row = con.execute("SELECT value FROM config").fetchone()
         return None if row is None else json.loads(row[0])
 
     def record(self, rows: Iterable[EpisodeRow]) -> None:
         """Insert episodes in one transaction; an episode already recorded is replaced."""
-        with self._con:
-            self._con.executemany(
+        with self._transaction() as con:
+            con.executemany(
                 f"INSERT OR REPLACE INTO episodes ({_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 (_values(r) for r in rows),
             )
@@ -123,4 +152,5 @@ class RunStore:
             f"SELECT {_COLUMNS} FROM episodes WHERE {where} "
             "ORDER BY ticket_id, task, seed_set, seed"
         )
-        return [_row(v) for v in self._con.execute(query, used)]
+        with self._transaction("DEFERRED") as con:
+            return [_row(v) for v in con.execute(query, used)]

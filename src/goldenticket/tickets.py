@@ -47,11 +47,31 @@ class Ticket:
 
     @property
     def id(self) -> str:
-        """12 hex chars of sha256 over the shape and the float32 C-contiguous noise bytes."""
+        """12 hex chars of sha256 over the policy fingerprint (metadata `policy_fingerprint`:
+        weights hash and denoising steps), the shape and the float32 noise bytes, so that one id
+        names one ticket for one policy."""
         noise = np.ascontiguousarray(self.noise, dtype=np.float32)
-        digest = hashlib.sha256(repr(tuple(noise.shape)).encode())
+        digest = hashlib.sha256(self.metadata.get("policy_fingerprint", "").encode())
+        digest.update(repr(tuple(noise.shape)).encode())
         digest.update(noise.tobytes())
         return digest.hexdigest()[:12]
+
+    def check_fits(self, fingerprint: str, task: str, where: str) -> None:
+        """UserError unless the ticket was found for this policy (fingerprint) and task; a ticket
+        without that metadata (made by hand) fits anything."""
+        meta, found_for = self.metadata, []
+        if meta.get("policy_fingerprint", fingerprint) != fingerprint:
+            found_for.append(f"policy {meta.get('policy')} ({meta['policy_fingerprint']})")
+        if meta.get("task", task) != task:
+            found_for.append(f"task {meta['task']}")
+        if found_for:
+            raise UserError(f"{where}: ticket {self.id} was found for {' and '.join(found_for)}, not "
+                            f"this policy ({fingerprint}) on {task}; --allow-transfer runs it anyway")
+
+    def search_seeds(self) -> range | None:
+        """The search seeds it was found on (metadata `search_seeds`: [first, last]), if recorded."""
+        span = self.metadata.get("search_seeds")
+        return None if span is None else range(span[0], span[1] + 1)
 
     def save(self, path: str | Path) -> Path:
         """Write one .safetensors file: tensor "noise" plus metadata as JSON in the header."""
@@ -95,6 +115,10 @@ def _parse_metadata(header: dict[str, str], path: Path) -> dict:
         raise UserError(f"{path}: ticket metadata is not valid JSON ({e})") from None
     if not isinstance(metadata, dict):
         raise UserError(f"{path}: ticket metadata must be a JSON object")
+    span = metadata.get("search_seeds")
+    if span is not None and not (isinstance(span, list) and len(span) == 2
+                                 and all(type(s) is int and s >= 0 for s in span) and span[0] <= span[1]):
+        raise UserError(f"{path}: metadata search_seeds must be [first, last] seeds, got {span!r}")
     return metadata
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -120,7 +121,7 @@ def train_policy(cfg: PolicyConfig, demos: Demos, *, steps: int = 20_000, batch:
     act = model.normalise_actions(torch.as_tensor(act_np))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
-    losses, running = [], 0.0
+    losses, running = [], []
     for step in tqdm(range(steps), desc=f"training {cfg.name}", unit="step", mininterval=1):
         idx = torch.randint(len(obs), (batch,), generator=gen)
         loss = _denoising_loss(model, cfg, obs[idx], act[idx], gen)
@@ -128,10 +129,10 @@ def train_policy(cfg: PolicyConfig, demos: Demos, *, steps: int = 20_000, batch:
         loss.backward()
         opt.step()
         sched.step()
-        running += loss.item()
-        if (step + 1) % 1000 == 0:
-            losses.append(running / 1000)
-            running = 0.0
+        running.append(loss.item())
+        if len(running) == 1000 or step == steps - 1:  # mean per 1k steps; the last may be shorter
+            losses.append(sum(running) / len(running))
+            running = []
     return MLPPolicy(cfg, model), losses
 
 
@@ -151,35 +152,59 @@ def _denoising_loss(model, cfg, obs, x0, gen):
 def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: DemoStyle,
                  steps: int, denoise_steps: int = 10, horizon: int = 8, n_exec: int = 4,
                  seed: int = 0, heldout: int = 200) -> dict:
-    """Collect demos, train, measure base and zero-ticket success, write the policy folder."""
-    from goldenticket.evaluation import Evaluator, judge
-    from goldenticket.noise import Constant
-    from goldenticket.rollout import Engine
+    """Collect demos, train, measure base and zero-ticket success, write the policy folder.
 
+    Everything is written to a hidden folder beside `out` that becomes `out` only when complete,
+    so a failed or interrupted run leaves no half-written policy."""
     for name, value in (("--demos", n_demos), ("--steps", steps), ("--denoise-steps", denoise_steps),
                         ("--horizon", horizon), ("--n-exec", n_exec)):
         if value <= 0:
             raise UserError(f"{name} must be > 0, got {value}")
     if n_exec > horizon:
         raise UserError(f"--n-exec {n_exec} cannot exceed --horizon {horizon}")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise UserError(f"--out {out} already exists; choose a new folder")
     task = get_task(task_name)
     name = f"{task_name}/{kind}"
     demos = collect_demos(task, n_demos, style, seed)
     cfg = PolicyConfig(name, kind, task.obs_dim, task.action_dim, horizon, n_exec,
                        steps=denoise_steps)
     policy, losses = train_policy(cfg, demos, steps=steps, seed=seed)
-    policy.save(out)
-    with Engine(str(out), task) as engine:
-        judged = judge(Evaluator(engine), {"zero": Constant(np.zeros(policy.noise_shape,
-                                                                     np.float32))},
-                       seeds_in("heldout", heldout))
-    card = {"policy": name, "demos": n_demos, "demo_attempts": demos.attempts,
-            "style": asdict(style), "train_steps": steps, "seed": seed,
-            "loss_per_1k_steps": [round(x, 5) for x in losses],
-            "base": judged["base"].to_dict(), "zero": judged["zero"].to_dict()}
-    (out / "card.json").write_text(json.dumps(card, indent=2) + "\n")
-    (out / "MODEL_CARD.md").write_text(model_card(card, cfg))
-    return card
+    partial = out.parent / f".{out.name}.partial"
+    shutil.rmtree(partial, ignore_errors=True)
+    try:
+        policy.save(partial)
+        card = {"policy": name, "demos": n_demos, "demo_attempts": demos.attempts,
+                "style": asdict(style), "train_steps": steps, "seed": seed,
+                "loss_per_1k_steps": [round(x, 5) for x in losses]}
+        write_card(partial, card | measure(partial, task, heldout), cfg)
+        if out.exists():
+            out.rmdir()
+        partial.rename(out)
+    finally:
+        shutil.rmtree(partial, ignore_errors=True)
+    return json.loads((out / "card.json").read_text())
+
+
+def measure(policy_dir: Path, task: MetaWorldTask, heldout: int, workers: int = 1) -> dict:
+    """Base and zero-ticket success of a saved policy on the first `heldout` held-out seeds."""
+    from goldenticket.evaluation import Evaluator, judge
+    from goldenticket.noise import Constant
+    from goldenticket.rollout import Engine
+    from goldenticket.workflow import progress_bar
+
+    with Engine(str(policy_dir), task, workers=workers) as engine:
+        evaluator = Evaluator(engine)
+        zero = Constant(np.zeros(MLPPolicy.load(policy_dir).noise_shape, np.float32))
+        with progress_bar(evaluator, 2 * heldout, "held-out: base and zero ticket"):
+            judged = judge(evaluator, {"zero": zero}, seeds_in("heldout", heldout))
+    return {"base": judged["base"].to_dict(), "zero": judged["zero"].to_dict()}
+
+
+def write_card(directory: Path, card: dict, cfg: PolicyConfig) -> None:
+    """card.json (the measured numbers) and MODEL_CARD.md (the same, for people)."""
+    (directory / "card.json").write_text(json.dumps(card, indent=2) + "\n")
+    (directory / "MODEL_CARD.md").write_text(model_card(card, cfg))
 
 
 TARGET_BAND = (0.2, 0.85)  # base success where a golden ticket has room to help
@@ -209,7 +234,7 @@ def model_card(card: dict, cfg: PolicyConfig) -> str:
 - **Why it is imperfect**: few, noisy, multimodal demonstrations: {style.describe()}. The
   policy learns that spread of habits; fresh noise at each replan mixes them within one episode.
 - **Training**: {card['train_steps']} AdamW steps, batch 256, cosine learning rate, seed
-  {card['seed']}; mean loss over the first / last 1k steps: {losses[0]:.4f} / {losses[-1]:.4f}.
+  {card['seed']}; mean loss over the first / last (up to) 1k steps: {losses[0]:.4f} / {losses[-1]:.4f}.
 - **Held-out success** (first {card['base']['n']} held-out seeds):
   - base policy (fresh Gaussian noise at every call): {rate(card['base'])}
   - zero ticket (w = 0): {rate(card['zero'])}{band_note(card['base']['success_rate'])}

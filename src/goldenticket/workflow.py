@@ -10,15 +10,15 @@ import numpy as np
 from tqdm import tqdm
 
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Evaluator, Judged, judge
+from goldenticket.evaluation import Evaluator, Judged, judge, p_value_note
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine
 from goldenticket.search import EpisodeOutcome, SearchResult, make_optimizer, run_search
 from goldenticket.stats import holm_adjust
 from goldenticket.store import RunStore
-from goldenticket.tasks import OBJECTIVES, SEED_SETS, get_task, seeds_in
-from goldenticket.tasks.base import require_unseen
+from goldenticket.tasks import OBJECTIVES, get_task, seeds_in
+from goldenticket.tasks.base import require_heldout, require_unseen
 from goldenticket.tickets import Ticket, zero_ticket
 
 
@@ -40,11 +40,24 @@ class SearchConfig:
     workers: int = 2
 
     def check(self) -> None:
-        for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets"):
+        """Every option, before any episode runs."""
+        for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets",
+                     "stop_after_perfect"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise UserError(f"--{name.replace('_', '-')} must be > 0, got {getattr(self, name)}")
         if self.objective not in OBJECTIVES:
             raise UserError(f"unknown objective {self.objective!r}; choose from {list(OBJECTIVES)}")
+
+    def optimizer(self, noise_shape: tuple[int, int], search_seeds: list[int]):
+        """This run's optimizer, fresh from its seed; UserError if the budget cannot score even
+        the first ticket it asks for."""
+        optimizer = make_optimizer(self.method, noise_shape, search_seeds, np.random.default_rng(self.seed))
+        first = make_optimizer(self.method, noise_shape, search_seeds, np.random.default_rng(self.seed))
+        needed = len(first.ask()[0].seeds)
+        if self.budget < needed:
+            raise UserError(f"--budget {self.budget} is too small: {self.method} needs {needed} "
+                            "episodes to score one ticket")
+        return optimizer
 
 
 def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
@@ -52,26 +65,22 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     cfg.check()
     policy, task = load_policy(cfg.policy), get_task(cfg.task)
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
-    optimizer = make_optimizer(cfg.method, policy.noise_shape, search_seeds,
-                               np.random.default_rng(cfg.seed))
-    out.mkdir(parents=True, exist_ok=True)
+    optimizer = cfg.optimizer(policy.noise_shape, search_seeds)
+    fingerprint = policy.fingerprint()
     store = _open_store(out, cfg)
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     with Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers) as engine:
         evaluator = Evaluator(engine, store)
-        with _progress(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
+        with progress_bar(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
-        with _progress(evaluator, cfg.budget, f"search ({cfg.method})") as bar:
-            result = run_search(optimizer, query_evaluator(evaluator), budget=cfg.budget,
+        with progress_bar(evaluator, cfg.budget, f"search ({cfg.method})") as bar:
+            result = run_search(optimizer, query_evaluator(evaluator, fingerprint), budget=cfg.budget,
                                 stop_after_perfect=cfg.stop_after_perfect,
                                 max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
         top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds)) or result.top(cfg.top_k)
-        if not top:
-            raise UserError(f"--budget {cfg.budget} is too small to evaluate a single ticket")
-        weights = policy.weights_hash()
-        tickets = [_ticket(cfg, weights, result, c, search_seeds) for c in top]
-        with _progress(evaluator, cfg.heldout * len(tickets), "held-out: top tickets"):
+        tickets = [_ticket(cfg, fingerprint, result, c, search_seeds) for c in top]
+        with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
     store.close()
@@ -83,34 +92,40 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
 
 
 def _open_store(out: Path, cfg: SearchConfig) -> RunStore:
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} is a file; name a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create --out {out}: {exc.strerror}") from None
     store = RunStore(out / "run.sqlite")
-    stored, wanted = store.get_config(), asdict(cfg) | {"workers": None}
-    if stored is None:
-        store.set_config(wanted)
-    elif stored != wanted:
+    if not store.claim_config(asdict(cfg) | {"workers": None}):
         store.close()
         raise UserError(f"{out} holds a different run; choose another --out or the same options")
     return store
 
 
-def _progress(evaluator: Evaluator, total: int, desc: str) -> tqdm:
+def progress_bar(evaluator: Evaluator, total: int, desc: str) -> tqdm:
+    """A tqdm bar that the evaluator advances as episodes finish (or are read back)."""
     bar = tqdm(total=total, desc=desc, unit="ep", dynamic_ncols=True)
     evaluator.on_done = bar.update
     return bar
 
 
-def query_evaluator(evaluator: Evaluator):
+def query_evaluator(evaluator: Evaluator, fingerprint: str):
+    """The search driver's evaluate(): each query's episodes, labelled by the ticket's id."""
     def evaluate(queries):
-        jobs = [(Ticket(q.ticket).id, Constant(q.ticket), q.seeds) for q in queries]
+        jobs = [(Ticket(q.ticket, {"policy_fingerprint": fingerprint}).id, Constant(q.ticket), q.seeds)
+                for q in queries]
         return [EpisodeOutcome(np.array([r.ret for r in rs]), np.array([r.success for r in rs]))
                 for rs in evaluator.run(jobs)]
     return evaluate
 
 
-def _ticket(cfg: SearchConfig, weights_hash: str, result: SearchResult, candidate,
+def _ticket(cfg: SearchConfig, fingerprint: str, result: SearchResult, candidate,
             search_seeds: list[int]) -> Ticket:
     return Ticket(candidate.ticket, {
-        "policy": cfg.policy, "policy_weights_hash": weights_hash,
+        "policy": cfg.policy, "policy_fingerprint": fingerprint,
         "noise_shape": list(candidate.ticket.shape), "task": cfg.task, "method": cfg.method,
         "budget": cfg.budget, "episodes_used": result.episodes_used, "seed": cfg.seed,
         "objective": cfg.objective, "search_seeds": [search_seeds[0], search_seeds[-1]],
@@ -146,28 +161,29 @@ def _summary(cfg: SearchConfig, judged: dict[str, Judged], entries: list[dict],
         "search_episodes": result.episodes_used, "stopped_because": result.stopped_because,
         "heldout_seeds": span,
         "base": judged["base"].to_dict(), "zero": judged["zero"].to_dict(),
-        "golden": entries[0], "tickets": entries,
-        "p_value_note": "p-values: one-sided exact McNemar (sign) test on the paired held-out "
-                        "seeds, ticket better than base (p vs base) or than the zero ticket "
-                        f"(p vs zero), Holm-adjusted over the {len(entries)} tickets tested. "
-                        "'golden' means p vs base < 0.05.",
+        "best": entries[0], "tickets": entries,
+        "p_value_note": p_value_note(len(entries)),
     }
 
 
-def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path],
-                     seeds: list[int], seed: int = 0, workers: int = 2) -> dict[str, dict]:
-    """Base, zero ticket and each ticket on `seeds`; p-values vs base (one-sided, paired)."""
+def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path], seeds: list[int],
+                     seed: int = 0, workers: int = 2, allow_transfer: bool = False) -> dict[str, dict]:
+    """Base, zero ticket and each ticket on held-out `seeds`: one-sided paired p-values vs base
+    and vs zero, Holm-adjusted over the tickets. A ticket found for another policy or task is
+    refused unless `allow_transfer`."""
+    require_heldout(seeds)
     policy, task = load_policy(policy_name), get_task(task_name)
     tickets = [Ticket.load(p, expected_shape=policy.noise_shape) for p in ticket_paths]
-    require_unseen(seeds, SEED_SETS["train"], "training-demonstration seeds")
     for path, ticket in zip(ticket_paths, tickets, strict=True):
-        low, high = ticket.metadata.get("search_seeds", (-1, -1))
-        if low >= 0:
-            require_unseen(seeds, range(low, high + 1), f"search seeds of {path}")
+        if not allow_transfer:
+            ticket.check_fits(policy.fingerprint(), task_name, str(path))
+        if ticket.search_seeds() is not None:
+            require_unseen(seeds, ticket.search_seeds(), f"search seeds of {path}")
     sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
     sources |= {t.id: Constant(t.noise) for t in tickets}
     with Engine(policy_name, task, workers=workers) as engine:
         evaluator = Evaluator(engine)
-        with _progress(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
+        with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
             judged = judge(evaluator, sources, seeds, Gaussian(seed))
+    _adjust_for_multiplicity(judged, [t.id for t in tickets])
     return {label: j.to_dict() for label, j in judged.items()}

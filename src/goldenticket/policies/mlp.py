@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
@@ -17,6 +18,7 @@ from goldenticket.errors import UserError
 
 KINDS = ("flow", "ddim")
 BLOCK = 16  # rows per network call; see MLPPolicy.act
+GRID = 2.0**-20  # actions are rounded to multiples of this; see MLPPolicy.act
 
 
 @dataclass
@@ -77,7 +79,10 @@ def ddim_alpha_bar(t: torch.Tensor) -> torch.Tensor:
 
 
 class MLPPolicy:
-    """A frozen denoising policy; `act` is deterministic given (obs, noise)."""
+    """A frozen denoising policy; `act` is deterministic given (obs, noise), on any x86-64 CPU.
+
+    `model` holds the float32 weights (trained, saved, hashed); inference runs on a float64 copy.
+    """
 
     def __init__(self, cfg: PolicyConfig, model: Denoiser | None = None):
         if cfg.kind not in KINDS:
@@ -86,6 +91,7 @@ class MLPPolicy:
             raise UserError(f"DDIM steps must be in 1..{cfg.train_timesteps}, got {cfg.steps}")
         self.cfg = cfg
         self.model = (model or Denoiser(cfg)).eval()
+        self._net = copy.deepcopy(self.model).double()
 
     name = property(lambda self: self.cfg.name)
     n_exec = property(lambda self: self.cfg.n_exec)
@@ -93,22 +99,27 @@ class MLPPolicy:
 
     @torch.no_grad()
     def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        """The network runs on fixed blocks of BLOCK rows, the last zero-padded: CPU matmul
-        kernels change with the row count, and fixed shapes keep each row's actions bitwise
-        independent of its batch (tests/test_policies.py)."""
+        """Same actions on every CPU. Math kernels (MKL, ATen SIMD) differ between CPUs in the
+        last bits, and rollouts are chaotic, so inference runs in float64, where kernels differ
+        by < 1e-13, and rounds the actions once to multiples of GRID (2^-20, far below any
+        actuator's resolution): a kernel difference changes an action only if it straddles a
+        grid point, measured at ~3e-10 per action value (README, "Same numbers on every
+        machine"). The network runs on fixed blocks of BLOCK rows, the last zero-padded, so
+        each row's actions are bitwise independent of its batch."""
         n, pad = len(obs), -len(obs) % BLOCK
-        obs_n = self.model.normalise_obs(torch.as_tensor(obs, dtype=torch.float32))
+        obs_n = self._net.normalise_obs(torch.as_tensor(obs, dtype=torch.float64))
         obs_n = torch.nn.functional.pad(obs_n, (0, 0, 0, pad))
-        x = torch.tensor(noise, dtype=torch.float32)  # a copy: tickets may be read-only views
+        x = torch.tensor(noise, dtype=torch.float64)  # a copy: tickets may be read-only views
         x = torch.nn.functional.pad(x, (0, 0, 0, 0, 0, pad))
         denoise = self._flow if self.cfg.kind == "flow" else self._ddim
         x = torch.cat([denoise(o, xb) for o, xb in zip(obs_n.split(BLOCK), x.split(BLOCK), strict=True)])
-        return self.model.denormalise_actions(x[:n])[:, : self.cfg.n_exec].numpy()
+        actions = self._net.denormalise_actions(x[:n])[:, : self.cfg.n_exec]
+        return (torch.round(actions / GRID) * GRID).to(torch.float32).numpy()
 
     def _flow(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        ts = torch.linspace(1.0, 0.0, self.cfg.steps + 1)
+        ts = torch.linspace(1.0, 0.0, self.cfg.steps + 1, dtype=torch.float64)
         for t, t_next in zip(ts[:-1], ts[1:], strict=True):
-            x = x + (t_next - t) * self.model(obs_n, x, t.expand(len(x)))
+            x = x + (t_next - t) * self._net(obs_n, x, t.expand(len(x)))
         return x
 
     def _ddim(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -116,13 +127,18 @@ class MLPPolicy:
         ending on the clean sample. The terminal timestep is never used: its alpha_bar is ~0,
         which would make x0 = (x - eps) / sqrt(alpha_bar) rounding error."""
         T = self.cfg.train_timesteps
-        ts = torch.arange(self.cfg.steps - 1, -1, -1) * (T // self.cfg.steps) / (T - 1)
-        alphas = [ddim_alpha_bar(t) for t in ts] + [torch.tensor(1.0)]
+        steps = torch.arange(self.cfg.steps - 1, -1, -1, dtype=torch.float64)
+        ts = steps * (T // self.cfg.steps) / (T - 1)
+        alphas = [ddim_alpha_bar(t) for t in ts] + [torch.tensor(1.0, dtype=torch.float64)]
         for t, a, a_next in zip(ts, alphas[:-1], alphas[1:], strict=True):
-            eps = self.model(obs_n, x, t.expand(len(x)))
+            eps = self._net(obs_n, x, t.expand(len(x)))
             x0 = ((x - (1 - a).sqrt() * eps) / a.sqrt()).clamp(-1.5, 1.5)
             x = a_next.sqrt() * x0 + (1 - a_next).sqrt() * eps
         return x
+
+    def fingerprint(self) -> str:
+        """What a ticket is found for: the weights hash and the denoising step count."""
+        return f"{self.weights_hash()}@{self.cfg.steps}"
 
     def weights_hash(self) -> str:
         digest = hashlib.sha256()

@@ -32,8 +32,11 @@ def find_ticket(ref: str) -> Path:
     if path.is_file():
         return path
     matches = [p for p in bundled_tickets() if p.stem == ref]
-    if len(matches) != 1:
+    if not matches:
         raise UserError(f"{ref}: no such ticket file or bundled ticket id (see `goldenticket tickets list`)")
+    if len(matches) > 1:
+        raise UserError(f"ticket id {ref} is ambiguous; name one file: "
+                        + ", ".join(str(p) for p in matches))
     return matches[0]
 
 

@@ -34,6 +34,14 @@ def require_unseen(seeds: Sequence[int], used: range, what: str) -> None:
                         f"({used.start}:{used.stop}); held-out seeds must be new")
 
 
+def require_heldout(seeds: Sequence[int]) -> None:
+    """UserError unless every seed is a held-out seed: verdicts need states nothing was fit on."""
+    block = SEED_SETS["heldout"]
+    if min(seeds) < block.start or max(seeds) >= block.stop:
+        raise UserError(f"seeds {min(seeds)}:{max(seeds) + 1} are not all held-out seeds "
+                        f"({block.start}:{block.stop}); a verdict needs states no search or training used")
+
+
 def seed_set_of(seed: int) -> str:
     """Name of the set a seed belongs to."""
     for name, block in SEED_SETS.items():
