@@ -1,16 +1,30 @@
-"""The `goldenticket` command line."""
+"""goldenticket: find one constant noise (a golden ticket) that makes a frozen diffusion or
+flow-matching policy succeed more often, and prove it on held-out initial states."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 import time
 from pathlib import Path
 
+from goldenticket import __version__
 from goldenticket.errors import UserError
 
 DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
+POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder written by `train`; " \
+              "append @N to run N denoising steps"
+TASK_HELP = "task name, e.g. metaworld/pick-place-v3"
+
+
+class Interrupted(Exception):
+    """Ctrl-C or SIGTERM: stop, keep what is recorded, exit 128 + signal number."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
 
 
 def _seed_range(text: str) -> range:
@@ -23,85 +37,155 @@ def _seed_range(text: str) -> range:
     return range(a, b)
 
 
-def _search_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, required=True, help="output folder (resumable)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
-    p.add_argument("--workers", type=int, default=2, help="worker processes (default 2)")
+class _HelpFormatter(argparse.HelpFormatter):
+    """Each option's help ends with its default, where it has one worth saying."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        unsaid = action.default is False or action.default in (None, [], argparse.SUPPRESS)
+        if action.required or unsaid or "default" in text:
+            return text
+        return f"{text} (default: {action.default})"
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, **kwargs):
+        super().__init__(formatter_class=_HelpFormatter, **kwargs)
+
     def error(self, message: str):  # one clear line, exit 2
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="goldenticket", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+def _run_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=Path, required=True,
+                   help="output folder: run.sqlite (every episode; rerun to resume), summary.json, "
+                        "tickets/, verdict.png, search.png")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    p.add_argument("--workers", type=int, default=2, help="worker processes (results do not depend on it)")
 
-    demo = sub.add_parser("demo", help=f"search a golden ticket for the bundled {DEMO_POLICY}")
-    _search_args(demo)
 
+def _search_parser(sub) -> None:
     search = sub.add_parser("search", help="search golden tickets for a policy on a task")
-    search.add_argument("--policy", required=True,
-                        help="bundled name or policy folder; append @N for N denoising steps")
-    search.add_argument("--task", required=True, help="e.g. metaworld/pick-place-v3")
-    search.add_argument("--method", default="cem-racing", choices=["rs", "cem", "zos", "cem-racing"])
-    search.add_argument("--budget", type=int, required=True, help="search episodes")
-    search.add_argument("--search-seeds", type=int, default=20, help="search initial states")
-    search.add_argument("--heldout", type=int, default=200, help="held-out initial states")
-    search.add_argument("--top-k", type=int, default=5, help="tickets judged on held-out states")
-    search.add_argument("--max-tickets", type=int, default=None, help="cap on distinct tickets")
+    search.add_argument("--policy", required=True, help=POLICY_HELP)
+    search.add_argument("--task", required=True, help=TASK_HELP)
+    search.add_argument("--method", default="cem-racing", choices=["rs", "cem", "zos", "cem-racing"],
+                        help="random search, cross-entropy method, zeroth-order search, or CEM with "
+                             "sequential-halving racing")
+    search.add_argument("--budget", type=int, required=True, help="search episodes to spend")
+    search.add_argument("--search-seeds", type=int, default=20, help="initial states to search on")
+    search.add_argument("--heldout", type=int, default=200,
+                        help="held-out initial states to judge base, zero ticket and top tickets on")
+    search.add_argument("--top-k", type=int, default=5, help="best search tickets judged on held-out states")
+    search.add_argument("--max-tickets", type=int, default=None,
+                        help="stop after this many distinct tickets (default: no cap)")
     search.add_argument("--stop-after-perfect", type=int, default=3,
                         help="stop once this many tickets succeed on every search seed (0: never)")
     search.add_argument("--objective", default="success",
-                        choices=["success", "discounted-success", "length"])
-    _search_args(search)
+                        choices=["success", "discounted-success", "length"],
+                        help="episode return the search maximises")
+    _run_args(search)
 
-    ev = sub.add_parser("evaluate", help="judge tickets against the base policy on given seeds")
-    ev.add_argument("--policy", required=True)
-    ev.add_argument("--task", required=True)
+
+def _evaluate_parser(sub) -> None:
+    ev = sub.add_parser("evaluate", help="judge tickets against the base policy on held-out seeds")
+    ev.add_argument("--policy", required=True, help=POLICY_HELP)
+    ev.add_argument("--task", required=True, help=TASK_HELP)
     ev.add_argument("--ticket", action="append", default=[],
-                    help="ticket file or bundled ticket id (repeatable)")
-    ev.add_argument("--seeds", type=_seed_range, required=True, help="seed range A:B")
-    ev.add_argument("--seed", type=int, default=0, help="seed of the base policy's noise")
-    ev.add_argument("--workers", type=int, default=2)
-    ev.add_argument("--json", action="store_true", help="print one JSON object")
+                    help="ticket file or bundled ticket id; repeat for several; without it, only "
+                         "the base and the zero ticket run")
+    ev.add_argument("--seeds", type=_seed_range, required=True,
+                    help="held-out seed range A:B (seeds 1000000:2000000 name held-out states)")
+    ev.add_argument("--seed", type=int, default=0, help="seed of the base policy's Gaussian noise")
+    ev.add_argument("--workers", type=int, default=2, help="worker processes (results do not depend on it)")
+    ev.add_argument("--allow-transfer", action="store_true",
+                    help="run tickets found for another policy or task (transfer studies)")
+    ev.add_argument("--plot", type=Path, default=Path("evaluate.png"),
+                    help="PNG of success with intervals per arm")
+    ev.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
 
-    tr = sub.add_parser("train", help="train a policy on scripted-expert demonstrations")
-    tr.add_argument("--task", required=True)
-    tr.add_argument("--kind", choices=["flow", "ddim"], default="flow")
-    tr.add_argument("--out", type=Path, required=True, help="policy folder to write")
-    tr.add_argument("--demos", type=int, default=20)
-    tr.add_argument("--grasp-offset", type=float, default=0.0)
-    tr.add_argument("--goal-offset", type=float, default=0.0)
-    tr.add_argument("--action-noise", type=float, default=0.0)
+
+def _train_parser(sub) -> None:
+    tr = sub.add_parser("train", help="train a policy on imperfect scripted-expert demonstrations")
+    tr.add_argument("--task", required=True, help=TASK_HELP)
+    tr.add_argument("--kind", choices=["flow", "ddim"], default="flow",
+                    help="flow matching (Euler steps) or DDIM (eta = 0)")
+    tr.add_argument("--out", type=Path, required=True, help="new policy folder to write")
+    tr.add_argument("--demos", type=int, default=20, help="successful demonstrations to train on")
+    tr.add_argument("--grasp-offset", type=float, default=0.0,
+                    help="each demonstrator aims at the object shifted by U(+-this) m in x and y")
+    tr.add_argument("--goal-offset", type=float, default=0.0,
+                    help="each demonstrator aims at the goal shifted by U(+-this) m in x and y")
+    tr.add_argument("--action-noise", type=float, default=0.0,
+                    help="std of Gaussian noise added to the demonstrators' actions")
     tr.add_argument("--steps", type=int, default=20_000, help="gradient steps")
     tr.add_argument("--denoise-steps", type=int, default=10, help="Euler / DDIM steps at inference")
     tr.add_argument("--horizon", type=int, default=8, help="actions predicted per call (H)")
     tr.add_argument("--n-exec", type=int, default=4, help="actions executed before replanning")
-    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--heldout", type=int, default=200,
+                    help="held-out initial states the model card's base and zero-ticket success use")
+    tr.add_argument("--seed", type=int, default=0, help="seed of demonstrations and training")
 
-    sub.add_parser("policies", help="list bundled policies with their measured success")
 
-    tickets = sub.add_parser("tickets", help="inspect ticket files")
-    tickets_sub = tickets.add_subparsers(dest="tickets_command", required=True)
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="goldenticket", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"goldenticket {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    demo = sub.add_parser("demo", help=f"search and judge a golden ticket for the bundled {DEMO_POLICY}")
+    _run_args(demo)
+    _search_parser(sub)
+    _evaluate_parser(sub)
+    _train_parser(sub)
+    sub.add_parser("policies", help="list bundled policies with their measured success").add_argument(
+        "--json", action="store_true", help="print the model cards as one JSON list")
+    tickets = sub.add_parser("tickets", help="inspect ticket files and the bundled golden tickets")
+    tickets_sub = tickets.add_subparsers(dest="tickets_command", required=True, parser_class=_Parser)
     tickets_sub.add_parser("show", help="print a ticket's id, shape and metadata").add_argument(
         "ticket", help="ticket file or bundled ticket id")
-    tickets_sub.add_parser("list", help="the golden tickets shipped with the bundled policies")
+    tickets_sub.add_parser("list", help="the golden tickets shipped with the bundled policies").add_argument(
+        "--json", action="store_true", help="print one JSON list")
     return parser
 
 
+def _joined_seed_ranges(argv: list[str]) -> list[str]:
+    """`--seeds -5:3` -> `--seeds=-5:3`, so a negative range gets the range check, not argparse's
+    'expected one argument'."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] == "--seeds" and arg.startswith("-") and ":" in arg:
+            out[-1] = f"--seeds={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    args = _parser().parse_args(_joined_seed_ranges(sys.argv[1:] if argv is None else argv))
+    previous = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         return COMMANDS[args.command](args)
     except UserError as exc:
-        print(f"goldenticket: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("goldenticket: interrupted (demo and search keep finished episodes in --out: "
-              "rerun the same command to resume)", file=sys.stderr)
-        return 130
+        return _fail(str(exc))
+    except OSError as exc:  # a full disk, a read-only folder, ...: what was recorded stays
+        where = f"{exc.filename}: " if exc.filename else ""
+        return _fail(f"{where}{exc.strerror or exc} (demo and search keep finished episodes in "
+                     "--out: rerun the same command to resume)")
+    except (Interrupted, KeyboardInterrupt) as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"goldenticket: stopped by {signal.Signals(signum).name} (demo and search keep finished "
+              "episodes in --out: rerun the same command to resume)", file=sys.stderr)
+        return 128 + signum
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def _raise_interrupted(signum: int, frame) -> None:
+    raise Interrupted(signum)
+
+
+def _fail(message: str) -> int:
+    print(f"goldenticket: error: {message}", file=sys.stderr)
+    return 2
 
 
 def _demo(args) -> int:
@@ -121,28 +205,37 @@ def _search(args) -> int:
 
 
 def _run_search(cfg, out: Path) -> int:
-    from goldenticket.report import summary_text
-    from goldenticket.workflow import find_golden_tickets
+    from goldenticket.report import verdict_text
+    from goldenticket.workflow import arm_rows, find_golden_tickets
 
     start = time.perf_counter()
-    summary = find_golden_tickets(cfg, out)
-    print(summary_text(summary))
-    print(f"Wrote {out / 'summary.json'} in {time.perf_counter() - start:.0f} s.")
+    s = find_golden_tickets(cfg, out)
+    print(verdict_text(arm_rows(s["base"], s["zero"], s["tickets"]), s["best"], s["p_value_note"]))
+    print(f"Best ticket saved to {s['best']['ticket_path']}. Wrote {out / 'summary.json'}, "
+          f"verdict.png and search.png in {time.perf_counter() - start:.0f} s.")
     return 0
 
 
 def _evaluate(args) -> int:
+    from goldenticket.evaluation import p_value_note
+    from goldenticket.plots import arms_png
     from goldenticket.policies import find_ticket
-    from goldenticket.workflow import evaluate_tickets
+    from goldenticket.report import verdict_text
+    from goldenticket.workflow import arm_rows, evaluate_tickets
 
     paths = [find_ticket(ref) for ref in args.ticket]
-    rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers)
+    rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
+                            args.allow_transfer)
+    tickets = [r | {"ticket_id": label} for label, r in rows.items() if label not in ("base", "zero")]
+    arms = arm_rows(rows["base"], rows["zero"], tickets)
+    best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],
+               key=lambda r: (r["success_rate"], -r["p_value"]))
+    arms_png(arms, args.plot, f"{args.policy} on {args.task}, seeds {args.seeds.start}:{args.seeds.stop}")
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
-        from goldenticket.report import verdict_table
-
-        print(verdict_table(rows))
+        print(verdict_text(arms, best, p_value_note(len(tickets))))
+        print(f"Wrote {args.plot}.")
     return 0
 
 
@@ -152,7 +245,7 @@ def _train(args) -> int:
     style = DemoStyle(args.grasp_offset, args.action_noise, args.goal_offset)
     build_policy(args.task, args.kind, args.out, n_demos=args.demos, style=style,
                  steps=args.steps, denoise_steps=args.denoise_steps, horizon=args.horizon,
-                 n_exec=args.n_exec, seed=args.seed)
+                 n_exec=args.n_exec, seed=args.seed, heldout=args.heldout)
     print(f"Wrote {args.out} (config.json, model.safetensors, MODEL_CARD.md).")
     return 0
 
@@ -162,6 +255,9 @@ def _policies(args) -> int:
     from goldenticket.report import policy_table
 
     cards = [json.loads((BUNDLED_DIR / name / "card.json").read_text()) for name in policy_names()]
+    if args.json:
+        print(json.dumps(cards, indent=2))
+        return 0
     print(policy_table(cards))
     print(f"Held-out success (95% Wilson interval) measured when each policy was trained; model "
           f"cards in {BUNDLED_DIR}. DDIM policies run with another step count as NAME@N.")
@@ -169,25 +265,32 @@ def _policies(args) -> int:
 
 
 def _tickets(args) -> int:
+    import numpy as np
+
     from goldenticket.policies import find_ticket
     from goldenticket.tickets import Ticket
 
     if args.tickets_command == "list":
-        return _tickets_list()
+        return _tickets_list(args.json)
     ticket = Ticket.load(find_ticket(args.ticket))
     print(f"ticket {ticket.id}  shape {tuple(ticket.noise.shape)}  "
-          f"norm {float((ticket.noise ** 2).sum() ** 0.5):.3f}")
+          f"norm {np.linalg.norm(ticket.noise.astype(np.float64)):.4g}")
     print(json.dumps(ticket.metadata, indent=2))
     return 0
 
 
-def _tickets_list() -> int:
+def _tickets_list(as_json: bool) -> int:
     from goldenticket.policies import bundled_tickets
     from goldenticket.report import ticket_table
     from goldenticket.tickets import Ticket
 
     paths = bundled_tickets()
-    print(ticket_table([Ticket.load(p) for p in paths]) if paths else "No bundled tickets.")
+    tickets = [Ticket.load(p) for p in paths]
+    if as_json:
+        print(json.dumps([{"id": t.id, "path": str(p)} | t.metadata
+                          for t, p in zip(tickets, paths, strict=True)], indent=2))
+        return 0
+    print(ticket_table(tickets) if tickets else "No bundled tickets.")
     print("search: success on the search seeds; p vs base: Holm-adjusted over the tickets judged "
           "with it; fresh seeds: the 200 held-out seeds after those shown.\n"
           "Reproduce one: goldenticket evaluate --policy POLICY --task TASK --ticket ID --seeds A:B "

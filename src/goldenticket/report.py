@@ -16,20 +16,17 @@ def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
     return "\n".join(lines)
 
 
-def summary_text(summary: dict) -> str:
-    """The demo/search table plus a one-line plain verdict."""
-    rows = {"base": summary["base"], "zero ticket": summary["zero"]}
-    rows |= {f"ticket {t['ticket_id']}": t for t in summary["tickets"]}
-    golden = summary["best"]
-    if golden["golden"]:
-        line = (f"Golden ticket {golden['ticket_id']}: {golden['success_rate']:.1%} vs base "
-                f"{summary['base']['success_rate']:.1%} on {golden['n']} held-out seeds "
-                f"(p = {golden['p_value']:.3g}); saved to {golden['ticket_path']}")
+def verdict_text(rows: dict[str, dict], best: dict, note: str) -> str:
+    """The verdict table (rows from `workflow.arm_rows`), a one-line plain verdict on the best
+    ticket, and how to read the p-values."""
+    base = rows["base"]["success_rate"]
+    if best["golden"]:
+        line = (f"Golden ticket {best['ticket_id']}: {best['success_rate']:.1%} vs base {base:.1%} on "
+                f"{best['n']} held-out seeds (p = {best['p_value']:.3g})")
     else:
-        line = (f"No golden ticket: the best ticket ({golden['ticket_id']}, "
-                f"{golden['success_rate']:.1%}) is not significantly better than the base "
-                f"({summary['base']['success_rate']:.1%}); p = {golden['p_value']:.3g} >= 0.05")
-    return f"{verdict_table(rows)}\n\n{line}\n{summary['p_value_note']}"
+        line = (f"No golden ticket: the best ticket ({best['ticket_id']}, {best['success_rate']:.1%}) "
+                f"is not significantly better than the base ({base:.1%}); p = {best['p_value']:.3g} >= 0.05")
+    return f"{verdict_table(rows)}\n\n{line}\n{note}"
 
 
 def _columns(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:

@@ -10,9 +10,10 @@ from typing import Any
 
 import numpy as np
 from safetensors import SafetensorError, safe_open
-from safetensors.numpy import save_file
+from safetensors.numpy import save
 
 from goldenticket.errors import UserError
+from goldenticket.files import write_atomic
 
 _TENSOR = "noise"
 _META_KEY = "goldenticket"
@@ -75,12 +76,9 @@ class Ticket:
 
     def save(self, path: str | Path) -> Path:
         """Write one .safetensors file: tensor "noise" plus metadata as JSON in the header."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         meta = json.dumps(self.metadata, sort_keys=True, default=_jsonable)
         noise = _checked_noise(self.noise, str(path))
-        save_file({_TENSOR: noise}, str(path), metadata={_META_KEY: meta})
-        return path
+        return write_atomic(path, save({_TENSOR: noise}, metadata={_META_KEY: meta}))
 
     @classmethod
     def load(cls, path: str | Path, expected_shape: tuple[int, ...] | None = None) -> Ticket:

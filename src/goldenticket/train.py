@@ -12,6 +12,7 @@ import torch
 from tqdm import tqdm
 
 from goldenticket.errors import UserError
+from goldenticket.files import write_atomic
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
 from goldenticket.tasks import MetaWorldTask, get_task, seeds_in
 
@@ -157,7 +158,7 @@ def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: D
     Everything is written to a hidden folder beside `out` that becomes `out` only when complete,
     so a failed or interrupted run leaves no half-written policy."""
     for name, value in (("--demos", n_demos), ("--steps", steps), ("--denoise-steps", denoise_steps),
-                        ("--horizon", horizon), ("--n-exec", n_exec)):
+                        ("--horizon", horizon), ("--n-exec", n_exec), ("--heldout", heldout)):
         if value <= 0:
             raise UserError(f"{name} must be > 0, got {value}")
     if n_exec > horizon:
@@ -203,8 +204,8 @@ def measure(policy_dir: Path, task: MetaWorldTask, heldout: int, workers: int = 
 
 def write_card(directory: Path, card: dict, cfg: PolicyConfig) -> None:
     """card.json (the measured numbers) and MODEL_CARD.md (the same, for people)."""
-    (directory / "card.json").write_text(json.dumps(card, indent=2) + "\n")
-    (directory / "MODEL_CARD.md").write_text(model_card(card, cfg))
+    write_atomic(directory / "card.json", json.dumps(card, indent=2) + "\n")
+    write_atomic(directory / "MODEL_CARD.md", model_card(card, cfg))
 
 
 TARGET_BAND = (0.2, 0.85)  # base success where a golden ticket has room to help

@@ -11,7 +11,9 @@ from tqdm import tqdm
 
 from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator, Judged, judge, p_value_note
+from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
+from goldenticket.plots import arms_png, search_png
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine
 from goldenticket.search import EpisodeOutcome, SearchResult, make_optimizer, run_search
@@ -87,8 +89,17 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     _adjust_for_multiplicity(judged, [t.id for t in tickets])
     span = [heldout[0], heldout[-1]]
     summary = _summary(cfg, judged, _save_ranked(tickets, judged, out, span), result, span)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    title = f"{cfg.policy} on {cfg.task}"
+    arms_png(arm_rows(summary["base"], summary["zero"], summary["tickets"]), out / "verdict.png", title)
+    search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
+               out / "search.png", f"{cfg.method} search: {title}")
     return summary
+
+
+def arm_rows(base: dict, zero: dict, tickets: list[dict]) -> dict[str, dict]:
+    """Verdict rows as people read them: base, zero ticket, then each ticket by its id."""
+    return {"base": base, "zero ticket": zero} | {f"ticket {t['ticket_id']}": t for t in tickets}
 
 
 def _open_store(out: Path, cfg: SearchConfig) -> RunStore:

@@ -11,10 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file, save
 from torch import nn
 
 from goldenticket.errors import UserError
+from goldenticket.files import write_atomic
 
 KINDS = ("flow", "ddim")
 BLOCK = 16  # rows per network call; see MLPPolicy.act
@@ -148,9 +149,8 @@ class MLPPolicy:
         return digest.hexdigest()[:16]
 
     def save(self, directory: Path) -> None:
-        directory.mkdir(parents=True, exist_ok=True)
-        save_file(self.model.state_dict(), str(directory / "model.safetensors"))
-        (directory / "config.json").write_text(json.dumps(asdict(self.cfg), indent=2) + "\n")
+        write_atomic(directory / "model.safetensors", save(self.model.state_dict()))
+        write_atomic(directory / "config.json", json.dumps(asdict(self.cfg), indent=2) + "\n")
 
     @classmethod
     def load(cls, directory: Path) -> MLPPolicy:

@@ -1,0 +1,63 @@
+"""Pictures for people: held-out success per arm with intervals, and the search's progress."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+from matplotlib.figure import Figure
+from matplotlib.ticker import PercentFormatter
+
+from goldenticket.files import write_atomic
+
+COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
+
+
+def arms_png(rows: dict[str, dict], path: Path, title: str) -> Path:
+    """One row per arm (base, zero ticket, tickets): held-out success with its 95% Wilson
+    interval; golden tickets in gold, the base rate as a dashed line."""
+    fig = Figure(figsize=(7.5, 1.4 + 0.45 * len(rows)))
+    ax = fig.subplots()
+    for y, (label, r) in enumerate(rows.items()):
+        kind = label if label in COLORS else ("golden" if r.get("golden") else "ticket")
+        rate = r["success_rate"]
+        ax.errorbar(rate, y, xerr=[[rate - r["ci_low"]], [r["ci_high"] - rate]], fmt="o", capsize=4,
+                    color=COLORS[kind], label=kind if kind in ("golden", "ticket") else None)
+        ax.annotate(f"{rate:.1%}", (r["ci_high"], y), xytext=(6, -4), textcoords="offset points")
+    ax.axvline(rows["base"]["success_rate"], color=COLORS["base"], linestyle="--", linewidth=1)
+    ax.set_yticks(range(len(rows)), list(rows))
+    ax.invert_yaxis()
+    ax.set(xlim=(0, 1.08), title=title, xlabel=f"held-out success, 95% Wilson interval "
+                                                 f"(n = {rows['base']['n']} seeds)")
+    ax.xaxis.set_major_formatter(PercentFormatter(1.0))
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        unique = dict(zip(labels, handles, strict=True))
+        ax.legend(unique.values(), unique.keys(), loc="lower right", fontsize="small")
+    return _save(fig, path)
+
+
+def search_png(scores: list[float], episodes: list[int], path: Path, title: str) -> Path:
+    """Each ticket's mean search return in the order the search first tried it (marker area by
+    its episodes), with the best so far among tickets scored on the most episodes."""
+    fig = Figure(figsize=(7.5, 4))
+    ax = fig.subplots()
+    full = max(episodes, default=0)
+    ax.scatter(range(1, len(scores) + 1), scores, s=[8 + 40 * n / max(full, 1) for n in episodes],
+               alpha=0.5, color="tab:green", label="ticket (area: episodes)")
+    best, running = [], float("-inf")
+    for score, n in zip(scores, episodes, strict=True):
+        running = max(running, score) if n == full else running
+        best.append(running if running > float("-inf") else None)
+    ax.step(range(1, len(best) + 1), [float("nan") if b is None else b for b in best], where="post",
+            color="goldenrod", label=f"best so far ({full} episodes)")
+    ax.set(title=title, xlabel="tickets, in the order tried", ylabel="mean search return")
+    ax.legend(loc="lower right", fontsize="small")
+    return _save(fig, path)
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    return write_atomic(path, buffer.getvalue())
