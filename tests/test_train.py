@@ -1,4 +1,7 @@
+import json
+
 import numpy as np
+import pytest
 
 from goldenticket.policies import PolicyConfig, TicketedPolicy
 from goldenticket.tasks import get_task
@@ -19,3 +22,31 @@ def test_demos_and_training_are_deterministic_for_a_seed():
     assert c.weights_hash() != a.weights_hash()
     deployed = TicketedPolicy(a, np.zeros(a.noise_shape, np.float32))
     assert deployed.act(obs[:3]).shape == (3, cfg.n_exec, 4)
+
+
+def test_train_with_few_steps_writes_a_complete_policy(tmp_path, capsys):
+    from goldenticket.cli import main
+
+    out = tmp_path / "p"
+    assert main(["train", "--task", "metaworld/reach-v3", "--steps", "300", "--demos", "2",
+                 "--heldout", "4", "--out", str(out)]) == 0
+    assert {p.name for p in out.iterdir()} == {"config.json", "model.safetensors", "card.json",
+                                               "MODEL_CARD.md"}
+    card = json.loads((out / "card.json").read_text())
+    assert len(card["loss_per_1k_steps"]) == 1 and card["base"]["n"] == 4
+    progress = capsys.readouterr().err
+    assert all(stage in progress for stage in ("demonstrations", "training", "held-out"))
+    assert main(["train", "--task", "metaworld/reach-v3", "--steps", "300", "--out", str(out)]) == 2
+
+
+def test_a_failed_train_leaves_nothing(tmp_path, monkeypatch):
+    from goldenticket import train
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("measurement failed")
+
+    monkeypatch.setattr(train, "measure", broken)
+    with pytest.raises(RuntimeError):
+        train.build_policy("metaworld/reach-v3", "flow", tmp_path / "p", n_demos=1,
+                           style=train.DemoStyle(), steps=10, heldout=2)
+    assert list(tmp_path.iterdir()) == []

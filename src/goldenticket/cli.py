@@ -17,6 +17,7 @@ DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v
 POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder written by `train`; " \
               "append @N to run N denoising steps"
 TASK_HELP = "task name, e.g. metaworld/pick-place-v3"
+MAX_STEPS_HELP = "episode step limit (default: the task's, 150 for Meta-World)"
 
 
 class Interrupted(Exception):
@@ -83,6 +84,7 @@ def _search_parser(sub) -> None:
     search.add_argument("--objective", default="success",
                         choices=["success", "discounted-success", "length"],
                         help="episode return the search maximises")
+    search.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     _run_args(search)
 
 
@@ -96,6 +98,7 @@ def _evaluate_parser(sub) -> None:
     ev.add_argument("--seeds", type=_seed_range, required=True,
                     help="held-out seed range A:B (seeds 1000000:2000000 name held-out states)")
     ev.add_argument("--seed", type=int, default=0, help="seed of the base policy's Gaussian noise")
+    ev.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     ev.add_argument("--workers", type=int, default=2, help="worker processes (results do not depend on it)")
     ev.add_argument("--allow-transfer", action="store_true",
                     help="run tickets found for another policy or task (transfer studies)")
@@ -200,7 +203,7 @@ def _search(args) -> int:
 
     cfg = SearchConfig(args.policy, args.task, args.method, args.budget, args.seed,
                        args.search_seeds, args.heldout, args.top_k, args.objective,
-                       args.stop_after_perfect or None, args.max_tickets, args.workers)
+                       args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps)
     return _run_search(cfg, args.out)
 
 
@@ -225,7 +228,7 @@ def _evaluate(args) -> int:
 
     paths = [find_ticket(ref) for ref in args.ticket]
     rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
-                            args.allow_transfer)
+                            args.allow_transfer, args.max_steps)
     tickets = [r | {"ticket_id": label} for label, r in rows.items() if label not in ("base", "zero")]
     arms = arm_rows(rows["base"], rows["zero"], tickets)
     best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],

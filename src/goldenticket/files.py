@@ -15,6 +15,8 @@ def write_atomic(path: str | Path, data: bytes | str) -> Path:
     try:
         partial.write_bytes(data.encode() if isinstance(data, str) else data)
         os.replace(partial, path)
+    except OSError as exc:  # name the file the user asked for, not the temporary one
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
     finally:
         partial.unlink(missing_ok=True)
     return path

@@ -33,7 +33,8 @@ def arms_png(rows: dict[str, dict], path: Path, title: str) -> Path:
     handles, labels = ax.get_legend_handles_labels()
     if handles:
         unique = dict(zip(labels, handles, strict=True))
-        ax.legend(unique.values(), unique.keys(), loc="lower right", fontsize="small")
+        ax.legend(unique.values(), unique.keys(), loc="upper left", bbox_to_anchor=(1.01, 1),
+                  fontsize="small")
     return _save(fig, path)
 
 
@@ -51,7 +52,8 @@ def search_png(scores: list[float], episodes: list[int], path: Path, title: str)
         best.append(running if running > float("-inf") else None)
     ax.step(range(1, len(best) + 1), [float("nan") if b is None else b for b in best], where="post",
             color="goldenrod", label=f"best so far ({full} episodes)")
-    ax.set(title=title, xlabel="tickets, in the order tried", ylabel="mean search return")
+    ax.set(title=title, xlabel="tickets, in the order tried", ylabel="mean search return",
+           ylim=(min(0, *scores) - 0.05, max(1, *scores) + 0.05))
     ax.legend(loc="lower right", fontsize="small")
     return _save(fig, path)
 

@@ -90,7 +90,8 @@ class RunStore:
                 yield self._con
                 self._con.execute("COMMIT")
             except BaseException:
-                self._con.execute("ROLLBACK")
+                if self._con.in_transaction:  # SQLite may have rolled back already (disk full)
+                    self._con.execute("ROLLBACK")
                 raise
         except sqlite3.DatabaseError as e:
             raise UserError(f"{self.path}: run store failed ({e}); what was recorded before is kept"

@@ -40,11 +40,12 @@ class SearchConfig:
     stop_after_perfect: int | None = 3
     max_tickets: int | None = None
     workers: int = 2
+    max_steps: int | None = None  # None: the task's own limit
 
     def check(self) -> None:
         """Every option, before any episode runs."""
         for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets",
-                     "stop_after_perfect"):
+                     "stop_after_perfect", "max_steps"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise UserError(f"--{name.replace('_', '-')} must be > 0, got {getattr(self, name)}")
         if self.objective not in OBJECTIVES:
@@ -65,7 +66,7 @@ class SearchConfig:
 def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     """Run the whole job into `out`; resumes from `out/run.sqlite` if it holds the same config."""
     cfg.check()
-    policy, task = load_policy(cfg.policy), get_task(cfg.task)
+    policy, task = load_policy(cfg.policy), get_task(cfg.task, cfg.max_steps)
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
     optimizer = cfg.optimizer(policy.noise_shape, search_seeds)
     fingerprint = policy.fingerprint()
@@ -178,12 +179,13 @@ def _summary(cfg: SearchConfig, judged: dict[str, Judged], entries: list[dict],
 
 
 def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path], seeds: list[int],
-                     seed: int = 0, workers: int = 2, allow_transfer: bool = False) -> dict[str, dict]:
+                     seed: int = 0, workers: int = 2, allow_transfer: bool = False,
+                     max_steps: int | None = None) -> dict[str, dict]:
     """Base, zero ticket and each ticket on held-out `seeds`: one-sided paired p-values vs base
     and vs zero, Holm-adjusted over the tickets. A ticket found for another policy or task is
     refused unless `allow_transfer`."""
     require_heldout(seeds)
-    policy, task = load_policy(policy_name), get_task(task_name)
+    policy, task = load_policy(policy_name), get_task(task_name, max_steps)
     tickets = [Ticket.load(p, expected_shape=policy.noise_shape) for p in ticket_paths]
     for path, ticket in zip(ticket_paths, tickets, strict=True):
         if not allow_transfer:

@@ -107,6 +107,14 @@ class MLPPolicy:
         grid point, measured at ~3e-10 per action value (README, "Same numbers on every
         machine"). The network runs on fixed blocks of BLOCK rows, the last zero-padded, so
         each row's actions are bitwise independent of its batch."""
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)  # these matmuls are small: threads only cost (~100x on a busy CPU)
+        try:
+            return self._act(obs, noise)
+        finally:
+            torch.set_num_threads(threads)
+
+    def _act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
         n, pad = len(obs), -len(obs) % BLOCK
         obs_n = self._net.normalise_obs(torch.as_tensor(obs, dtype=torch.float64))
         obs_n = torch.nn.functional.pad(obs_n, (0, 0, 0, pad))

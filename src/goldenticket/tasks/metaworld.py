@@ -75,4 +75,6 @@ def get_task(name: str, max_steps: int | None = None) -> MetaWorldTask:
     if name not in task_names():
         hint = ", ".join(n for n in task_names() if "pick" in n or "reach" in n)
         raise UserError(f"unknown task {name!r}; tasks look like: {hint}")
+    if max_steps is not None and max_steps < 1:
+        raise UserError(f"--max-steps must be >= 1, got {max_steps}")
     return MetaWorldTask(name) if max_steps is None else MetaWorldTask(name, max_steps)
