@@ -1,6 +1,9 @@
 import json
+import os
 import subprocess
 import sys
+import warnings
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -59,17 +62,66 @@ def test_rerun_resumes_from_the_store(search_run, policy_dir):
     assert (search_run / "summary.json").read_text() == before
 
 
-def test_evaluate_json_and_tickets_show(search_run, policy_dir, capsys):
+def test_evaluate_json_and_tickets_show(search_run, policy_dir, capsys, tmp_path):
     path = json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"]
     capsys.readouterr()
-    assert main(["evaluate", "--policy", policy_dir, "--task", TASK, "--ticket", path,
-                 "--seeds", "1000100:1000103", "--workers", "1", "--json"]) == 0
+    evaluate = ["evaluate", "--policy", policy_dir, "--task", TASK, "--ticket", path,
+                "--seeds", "1000100:1000103", "--workers", "1", "--plot", str(tmp_path / "e.png")]
+    assert main([*evaluate, "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
     ticket_id = Ticket.load(path).id
     assert set(rows) == {"base", "zero", ticket_id}
     assert rows[ticket_id]["n"] == 3 and "p_value" in rows[ticket_id]
+    assert main(evaluate) == 0
+    text = capsys.readouterr().out
+    assert f"ticket {ticket_id}" in text and "No golden ticket" in text and (tmp_path / "e.png").is_file()
     assert main(["tickets", "show", path]) == 0
     assert ticket_id in capsys.readouterr().out
+
+
+def test_search_writes_pictures_with_the_users_umask(search_run):
+    assert {"verdict.png", "search.png"} <= {p.name for p in search_run.iterdir()}
+    assert (search_run / "verdict.png").read_bytes().startswith(b"\x89PNG")
+    umask = os.umask(0)
+    os.umask(umask)
+    files = [p for p in search_run.rglob("*") if p.is_file()]
+    assert files and all(p.stat().st_mode & 0o777 == 0o666 & ~umask for p in files), files
+
+
+def test_help_says_defaults_and_version(capsys):
+    with pytest.raises(SystemExit):
+        main(["search", "--help"])
+    help_text = capsys.readouterr().out
+    assert "(default: cem-racing)" in help_text and "(default: 200)" in help_text
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    assert capsys.readouterr().out.startswith("goldenticket 0.")
+
+
+def test_listings_as_json(capsys):
+    assert main(["policies", "--json"]) == 0
+    cards = json.loads(capsys.readouterr().out)
+    assert len(cards) >= 20 and {"policy", "base", "zero"} <= cards[0].keys()
+    assert main(["tickets", "list", "--json"]) == 0
+    tickets = json.loads(capsys.readouterr().out)
+    assert tickets and {"id", "path", "policy", "task", "heldout"} <= tickets[0].keys()
+
+
+def test_huge_ticket_shows_without_warnings(tmp_path, capsys):
+    path = Ticket(np.full((8, 4), 1e30, np.float32)).save(tmp_path / "huge.safetensors")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["tickets", "show", str(path)]) == 0
+    assert "5.657e+30" in capsys.readouterr().out
+
+
+def test_transfer_needs_the_flag(search_run, policy_dir, tmp_path, capsys):
+    ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"])
+    evaluate = ["evaluate", "--policy", policy_dir, "--seeds", "1000000:1000002", "--workers", "1",
+                "--plot", str(tmp_path / "e.png"), "--ticket", str(ticket.save(tmp_path / "t.safetensors"))]
+    assert main([*evaluate, "--task", "metaworld/reach-v3"]) == 2
+    assert "--allow-transfer" in capsys.readouterr().err
+    assert main([*evaluate, "--task", "metaworld/reach-v3", "--allow-transfer"]) == 0
 
 
 def _bad_ticket_files(tmp_path):
@@ -89,10 +141,21 @@ def test_bad_inputs_exit_2_with_one_line(policy_dir, search_run, tmp_path):
     files = _bad_ticket_files(tmp_path)
     ticket = json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"]
     evaluate = ["evaluate", "--policy", policy_dir, "--task", TASK, "--seeds", "1000000:1000002"]
+    other_policy = Ticket(np.zeros((8, 4)), {"policy_fingerprint": "0123@4", "policy": "x"})
     cases = {
-        "unknown policy": ["evaluate", "--policy", "nope/x/flow", "--task", TASK, "--seeds", "0:2"],
+        "unknown policy": ["evaluate", "--policy", "nope/x/flow", "--task", TASK, "--seeds",
+                           "1000000:1000002"],
         "unknown task": ["evaluate", "--policy", policy_dir, "--task", "metaworld/x", "--seeds",
-                         "0:2"],
+                         "1000000:1000002"],
+        "negative seed range": evaluate[:-1] + ["-5:3"],
+        "search seeds without ticket": evaluate[:-1] + ["0:1"],
+        "seeds outside every set": evaluate[:-1] + ["3000000:3000001"],
+        "no workers": evaluate + ["--workers", "0"],
+        "negative workers": evaluate + ["--workers", "-1"],
+        "ticket of another policy": evaluate + ["--ticket",
+                                                str(other_policy.save(tmp_path / "o.safetensors"))],
+        "search_seeds not a list": evaluate + ["--ticket", str(_with_search_seeds(tmp_path, "ab"))],
+        "search_seeds of one seed": evaluate + ["--ticket", str(_with_search_seeds(tmp_path, [5]))],
         "wrong ticket shape": evaluate + ["--ticket", str(files["shape"])],
         "nan ticket": evaluate + ["--ticket", str(files["nan"])],
         "corrupt ticket": evaluate + ["--ticket", str(files["corrupt"])],
@@ -109,12 +172,19 @@ def test_bad_inputs_exit_2_with_one_line(policy_dir, search_run, tmp_path):
         "unknown method": ["search", "--policy", policy_dir, "--task", TASK, "--budget", "5",
                            "--method", "magic", "--out", str(tmp_path / "o")],
     }
-    for name, argv in cases.items():
-        proc = subprocess.run([sys.executable, "-m", "goldenticket.cli", *argv],
-                              capture_output=True, text=True, timeout=120)
-        assert proc.returncode == 2, (name, proc.stderr)
-        lines = proc.stderr.strip().splitlines()
-        assert len(lines) == 1 and "Traceback" not in proc.stderr, (name, proc.stderr)
+    def run(argv):
+        return subprocess.run([sys.executable, "-m", "goldenticket.cli", *argv], capture_output=True,
+                              text=True, timeout=120, cwd=tmp_path)
+
+    with ThreadPoolExecutor(2) as pool:
+        for name, proc in zip(cases, pool.map(run, cases.values()), strict=True):
+            assert proc.returncode == 2, (name, proc.stderr)
+            lines = proc.stderr.strip().splitlines()
+            assert len(lines) == 1 and "Traceback" not in proc.stderr, (name, proc.stderr)
+
+
+def _with_search_seeds(tmp_path, span):
+    return Ticket(np.zeros((8, 4)), {"search_seeds": span}).save(tmp_path / f"seeds{len(span)}.safetensors")
 
 
 def test_policies_lists_bundled_policies_with_measured_numbers(capsys):

@@ -2,6 +2,7 @@
 and every failure is one clear line with exit code 2 (or 128 + signal for a stop)."""
 
 import json
+import re
 import signal
 import sqlite3
 import subprocess
@@ -61,10 +62,16 @@ def _one_error_line(proc: subprocess.CompletedProcess) -> str:
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> dict:
+    """An uninterrupted run: its numbers and what it printed on stderr (the progress bars)."""
     out = tmp_path_factory.mktemp("reference")
-    assert _run(out).returncode == 0
-    assert _recorded(out) == TOTAL
-    return _numbers(out)
+    proc = _run(out)
+    assert proc.returncode == 0 and _recorded(out) == TOTAL
+    return {"numbers": _numbers(out), "stderr": proc.stderr}
+
+
+def test_progress_bars_never_count_past_their_total(reference):
+    counts = [(int(a), int(b)) for a, b in re.findall(r"\| (\d+)/(\d+) \[", reference["stderr"])]
+    assert counts and all(done <= total for done, total in counts), counts
 
 
 @pytest.mark.parametrize("episodes, workers", [(1, 1), (BASELINES + 1, 2), (BASELINES + 24, 1)],
@@ -73,7 +80,7 @@ def test_kill_9_then_rerun_gives_the_same_numbers(reference, tmp_path, episodes,
     code, _, kept = _stop_after(tmp_path, episodes, signal.SIGKILL, workers)
     assert code == -signal.SIGKILL and kept < TOTAL
     assert _run(tmp_path, workers).returncode == 0
-    assert _numbers(tmp_path) == reference
+    assert _numbers(tmp_path) == reference["numbers"]
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
@@ -83,7 +90,7 @@ def test_ctrl_c_and_sigterm_stop_with_one_line_and_resume(reference, tmp_path, s
     assert f"stopped by {signal.Signals(sig).name}" in stderr.splitlines()[-1]
     assert 0 < kept < TOTAL
     assert _run(tmp_path).returncode == 0
-    assert _numbers(tmp_path) == reference
+    assert _numbers(tmp_path) == reference["numbers"]
 
 
 def test_two_processes_on_one_out_both_finish_with_the_same_numbers(reference, tmp_path):
@@ -91,7 +98,15 @@ def test_two_processes_on_one_out_both_finish_with_the_same_numbers(reference, t
                               text=True) for _ in range(2)]
     for proc in procs:
         assert proc.wait(timeout=300) == 0, proc.stderr.read()
-    assert _numbers(tmp_path) == reference
+    assert _numbers(tmp_path) == reference["numbers"]
+
+
+def test_two_processes_with_different_options_on_one_out_one_is_refused(tmp_path):
+    commands = [_command(tmp_path), _command(tmp_path) + ["--seed", "1"]]
+    procs = [subprocess.Popen(c, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+             for c in commands]
+    codes = sorted(proc.wait(timeout=300) for proc in procs)
+    assert codes == [0, 2]
 
 
 @pytest.fixture
@@ -129,7 +144,7 @@ def test_disk_filling_mid_run_is_one_line_and_a_rerun_resumes(reference, disk):
     assert BASELINES <= _recorded(out) < TOTAL
     ballast.unlink()
     assert _run(out).returncode == 0
-    assert _numbers(out) == reference
+    assert _numbers(out) == reference["numbers"]
 
 
 def test_read_only_out_is_one_line(disk):
@@ -152,11 +167,13 @@ def test_damaged_store_is_one_line(tmp_path, reference):
     assert "damaged" in _one_error_line(_run(tmp_path))
 
 
-@pytest.mark.parametrize("option, value", [("--budget", "1"), ("--stop-after-perfect", "-1"),
-                                           ("--workers", "0"), ("--max-steps", "0")])
-def test_options_are_checked_before_any_episode(tmp_path, option, value):
+@pytest.mark.parametrize("options", [{"--budget": "3", "--search-seeds": "20"},  # racing's 1st tier: 4
+                                     {"--stop-after-perfect": "-1"}, {"--workers": "0"},
+                                     {"--max-steps": "0"}], ids=str)
+def test_options_are_checked_before_any_episode(tmp_path, options):
     out = tmp_path / "run"
     command = _command(out)
-    command[command.index(option) + 1] = value
+    for option, value in options.items():
+        command[command.index(option) + 1] = value
     _one_error_line(subprocess.run(command, capture_output=True, text=True, timeout=120))
     assert not out.exists()

@@ -175,3 +175,29 @@ def test_store_rejects_corrupt_and_foreign_files(tmp_path):
         with pytest.raises(UserError) as info:
             RunStore(path)
         assert "\n" not in str(info.value) and str(path) in str(info.value)
+
+
+def test_ticket_id_names_one_ticket_for_one_policy():
+    a = noise(0)
+    assert Ticket(a, {"policy_fingerprint": "aa@8"}).id != Ticket(a, {"policy_fingerprint": "aa@2"}).id
+    same = {"policy_fingerprint": "aa@8"}
+    assert Ticket(a, same | {"x": 1}).id == Ticket(a, same).id
+
+
+def test_ambiguous_bundled_ticket_id_lists_the_candidates(tmp_path, monkeypatch):
+    from goldenticket.policies import find_ticket, registry
+
+    monkeypatch.setattr(registry, "BUNDLED_DIR", tmp_path)
+    for policy in ("a/flow", "b/flow"):
+        Ticket(noise(0)).save(tmp_path / policy / "tickets" / "abcabcabcabc.safetensors")
+    with pytest.raises(UserError, match="ambiguous.*a/flow.*b/flow"):
+        find_ticket("abcabcabcabc")
+
+
+def test_ticket_found_for_another_policy_or_task_does_not_fit():
+    ticket = Ticket(noise(0), {"policy_fingerprint": "aa@8", "task": "metaworld/reach-v3", "policy": "p"})
+    ticket.check_fits("aa@8", "metaworld/reach-v3", "t")
+    for fingerprint, task in (("bb@8", "metaworld/reach-v3"), ("aa@8", "metaworld/push-v3")):
+        with pytest.raises(UserError, match="--allow-transfer"):
+            ticket.check_fits(fingerprint, task, "t")
+    Ticket(noise(0)).check_fits("bb@8", "metaworld/push-v3", "t")  # made by hand: no provenance
