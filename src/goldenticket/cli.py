@@ -262,8 +262,8 @@ def _policies(args) -> int:
         print(json.dumps(cards, indent=2))
         return 0
     print(policy_table(cards))
-    print(f"Held-out success (95% Wilson interval) measured when each policy was trained; model "
-          f"cards in {BUNDLED_DIR}. DDIM policies run with another step count as NAME@N.")
+    print(f"Held-out success (95% Wilson interval) on the first {cards[0]['base']['n']} held-out seeds, "
+          f"from the model cards in {BUNDLED_DIR}. DDIM policies run with another step count as NAME@N.")
     return 0
 
 
