@@ -187,11 +187,12 @@ def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path],
     require_heldout(seeds)
     policy, task = load_policy(policy_name), get_task(task_name, max_steps)
     tickets = [Ticket.load(p, expected_shape=policy.noise_shape) for p in ticket_paths]
+    fingerprint = policy.fingerprint()
     for path, ticket in zip(ticket_paths, tickets, strict=True):
         if not allow_transfer:
-            ticket.check_fits(policy.fingerprint(), task_name, str(path))
-        if ticket.search_seeds() is not None:
-            require_unseen(seeds, ticket.search_seeds(), f"search seeds of {path}")
+            ticket.check_fits(fingerprint, task_name, str(path))
+        if (searched := ticket.search_seeds()) is not None:
+            require_unseen(seeds, searched, f"search seeds of {path}")
     sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
     sources |= {t.id: Constant(t.noise) for t in tickets}
     with Engine(policy_name, task, workers=workers) as engine:
