@@ -245,4 +245,7 @@ Rebuild: `goldenticket train --task {card['policy'].rsplit('/', 1)[0]} --kind {c
 --goal-offset {style.goal_offset} --action-noise {style.action_noise} \\
 --steps {card['train_steps']} --seed {card['seed']} \\
 --horizon {cfg.horizon} --n-exec {cfg.n_exec} --denoise-steps {cfg.steps} --out DIR`
+(training runs in float32: bit for bit on the same kind of CPU; on another CPU the weights, and so
+the fingerprint and the numbers, differ. Rollouts of these shipped weights are the same on any CPU
+with AVX2 and FMA.)
 """
