@@ -98,3 +98,15 @@ def test_a_shipped_ticket_reproduces_its_recorded_heldout_success():
     results = rollout(load_policy(meta["policy"]), get_task(meta["task"]),
                       [Episode(Constant(ticket.noise), s) for s in seeds])
     assert np.mean([r.success for r in results]) == meta["heldout"]["success_rate"]
+
+
+def test_shipped_tickets_name_their_policy_and_their_id_names_them():
+    from goldenticket.policies import bundled_tickets
+    from goldenticket.tickets import Ticket
+
+    paths = bundled_tickets()
+    tickets = [Ticket.load(p) for p in paths]
+    assert len({t.id for t in tickets}) == len(tickets)
+    for path, ticket in zip(paths, tickets, strict=True):
+        assert path.stem == ticket.id
+        assert ticket.metadata["policy_fingerprint"] == load_policy(ticket.metadata["policy"]).fingerprint()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import time
@@ -18,14 +19,26 @@ POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder wri
               "append @N to run N denoising steps"
 TASK_HELP = "task name, e.g. metaworld/pick-place-v3"
 MAX_STEPS_HELP = "episode step limit (default: the task's, 150 for Meta-World)"
+RESUME = dict.fromkeys(("demo", "search"), " (finished episodes are kept in --out: rerun the same "
+                                           "command to resume)")
 
 
-class Interrupted(Exception):
+class Interrupted(BaseException):
     """Ctrl-C or SIGTERM: stop, keep what is recorded, exit 128 + signal number."""
 
     def __init__(self, signum: int):
         super().__init__(signum)
         self.signum = signum
+
+
+def _seed(text: str) -> int:
+    try:
+        seed = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"seed must be >= 0, got {seed}")
+    return seed
 
 
 def _seed_range(text: str) -> range:
@@ -61,7 +74,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True,
                    help="output folder: run.sqlite (every episode; rerun to resume), summary.json, "
                         "tickets/, verdict.png, search.png")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of every random draw")
     p.add_argument("--workers", type=int, default=2, help="worker processes (results do not depend on it)")
 
 
@@ -97,7 +110,7 @@ def _evaluate_parser(sub) -> None:
                          "the base and the zero ticket run")
     ev.add_argument("--seeds", type=_seed_range, required=True,
                     help="held-out seed range A:B (seeds 1000000:2000000 name held-out states)")
-    ev.add_argument("--seed", type=int, default=0, help="seed of the base policy's Gaussian noise")
+    ev.add_argument("--seed", type=_seed, default=0, help="seed of the base policy's Gaussian noise")
     ev.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     ev.add_argument("--workers", type=int, default=2, help="worker processes (results do not depend on it)")
     ev.add_argument("--allow-transfer", action="store_true",
@@ -126,7 +139,7 @@ def _train_parser(sub) -> None:
     tr.add_argument("--n-exec", type=int, default=4, help="actions executed before replanning")
     tr.add_argument("--heldout", type=int, default=200,
                     help="held-out initial states the model card's base and zero-ticket success use")
-    tr.add_argument("--seed", type=int, default=0, help="seed of demonstrations and training")
+    tr.add_argument("--seed", type=_seed, default=0, help="seed of demonstrations and training")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -170,12 +183,11 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(str(exc))
     except OSError as exc:  # a full disk, a read-only folder, ...: what was recorded stays
         where = f"{exc.filename}: " if exc.filename else ""
-        return _fail(f"{where}{exc.strerror or exc} (demo and search keep finished episodes in "
-                     "--out: rerun the same command to resume)")
+        return _fail(f"{where}{exc.strerror or exc}{RESUME.get(args.command, '')}")
     except (Interrupted, KeyboardInterrupt) as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
-        print(f"goldenticket: stopped by {signal.Signals(signum).name} (demo and search keep finished "
-              "episodes in --out: rerun the same command to resume)", file=sys.stderr)
+        print(f"goldenticket: stopped by {signal.Signals(signum).name}{RESUME.get(args.command, '')}",
+              file=sys.stderr)
         return 128 + signum
     finally:
         for s, handler in previous.items():
@@ -183,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _raise_interrupted(signum: int, frame) -> None:
+    for s in (signal.SIGINT, signal.SIGTERM):  # a second signal must not interrupt the clean-up
+        signal.signal(s, signal.SIG_IGN)
     raise Interrupted(signum)
 
 
@@ -227,6 +241,9 @@ def _evaluate(args) -> int:
     from goldenticket.workflow import arm_rows, evaluate_tickets
 
     paths = [find_ticket(ref) for ref in args.ticket]
+    folder = args.plot.parent
+    if args.plot.is_dir() or not folder.is_dir() or not os.access(folder, os.W_OK):
+        raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
     rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
                             args.allow_transfer, args.max_steps)
     tickets = [r | {"ticket_id": label} for label, r in rows.items() if label not in ("base", "zero")]

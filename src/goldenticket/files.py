@@ -2,21 +2,35 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import secrets
 from pathlib import Path
 
 
 def write_atomic(path: str | Path, data: bytes | str) -> Path:
-    """Write `data` to a temporary file beside `path`, then rename it over `path`: a crash or a
-    full disk never leaves half a file. Permissions follow the umask, as for any new file."""
+    """Write `data` to a new temporary file beside `path`, flush it to disk, then rename it over
+    `path`: a crash, a full disk or a second process writing the same file never leaves half a
+    file. Permissions follow the umask, as for any new file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.partial")
+    partial = path.with_name(f".{path.name}.{secrets.token_hex(4)}.partial")
     try:
-        partial.write_bytes(data.encode() if isinstance(data, str) else data)
+        fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+            f.flush()
+            os.fsync(f.fileno())
         os.replace(partial, path)
     except OSError as exc:  # name the file the user asked for, not the temporary one
+        with contextlib.suppress(OSError):
+            partial.unlink()
         raise OSError(exc.errno, exc.strerror, str(path)) from None
-    finally:
-        partial.unlink(missing_ok=True)
     return path
+
+
+def new_folder_beside(path: Path) -> Path:
+    """A new, empty, hidden folder beside `path` (umask permissions), to fill and then rename."""
+    folder = path.parent / f".{path.name}.{secrets.token_hex(4)}.partial"
+    folder.mkdir(parents=True)
+    return folder

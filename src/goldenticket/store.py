@@ -94,8 +94,10 @@ class RunStore:
                     self._con.execute("ROLLBACK")
                 raise
         except sqlite3.DatabaseError as e:
-            raise UserError(f"{self.path}: run store failed ({e}); what was recorded before is kept"
-                            " (if the file is damaged, move it away to start afresh)") from None
+            damaged = getattr(e, "sqlite_errorname", "") in ("SQLITE_CORRUPT", "SQLITE_NOTADB")
+            advice = "the file is damaged: move it away to start afresh" if damaged else \
+                "what was recorded before is kept"
+            raise UserError(f"{self.path}: run store failed ({e}); {advice}") from None
 
     def _schema_problem(self) -> str | None:
         """Create the schema in a new file; say what is wrong with a file that is not a store."""
@@ -128,11 +130,6 @@ class RunStore:
                 con.execute("INSERT INTO config VALUES (0, ?)", (json.dumps(config, sort_keys=True),))
                 return True
         return json.loads(row[0]) == json.loads(json.dumps(config))
-
-    def get_config(self) -> dict | None:
-        with self._transaction("DEFERRED") as con:
-            row = con.execute("SELECT value FROM config").fetchone()
-        return None if row is None else json.loads(row[0])
 
     def record(self, rows: Iterable[EpisodeRow]) -> None:
         """Insert episodes in one transaction; an episode already recorded is replaced."""

@@ -113,6 +113,8 @@ def _parse_metadata(header: dict[str, str], path: Path) -> dict:
         raise UserError(f"{path}: ticket metadata is not valid JSON ({e})") from None
     if not isinstance(metadata, dict):
         raise UserError(f"{path}: ticket metadata must be a JSON object")
+    if not isinstance(metadata.get("policy_fingerprint", ""), str):
+        raise UserError(f"{path}: metadata policy_fingerprint must be a string")
     span = metadata.get("search_seeds")
     if span is not None and not (isinstance(span, list) and len(span) == 2
                                  and all(type(s) is int and s >= 0 for s in span) and span[0] <= span[1]):

@@ -12,7 +12,7 @@ import torch
 from tqdm import tqdm
 
 from goldenticket.errors import UserError
-from goldenticket.files import write_atomic
+from goldenticket.files import new_folder_beside, write_atomic
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
 from goldenticket.tasks import MetaWorldTask, get_task, seeds_in
 
@@ -163,17 +163,19 @@ def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: D
             raise UserError(f"{name} must be > 0, got {value}")
     if n_exec > horizon:
         raise UserError(f"--n-exec {n_exec} cannot exceed --horizon {horizon}")
+    if seed < 0:
+        raise UserError(f"--seed must be >= 0, got {seed}")
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UserError(f"--out {out} already exists; choose a new folder")
+    seeds_in("heldout", heldout)  # a UserError now, not after training
     task = get_task(task_name)
     name = f"{task_name}/{kind}"
-    demos = collect_demos(task, n_demos, style, seed)
     cfg = PolicyConfig(name, kind, task.obs_dim, task.action_dim, horizon, n_exec,
                        steps=denoise_steps)
-    policy, losses = train_policy(cfg, demos, steps=steps, seed=seed)
-    partial = out.parent / f".{out.name}.partial"
-    shutil.rmtree(partial, ignore_errors=True)
+    partial = new_folder_beside(out)  # an OSError now if `out` cannot be written
     try:
+        demos = collect_demos(task, n_demos, style, seed)
+        policy, losses = train_policy(cfg, demos, steps=steps, seed=seed)
         policy.save(partial)
         card = {"policy": name, "demos": n_demos, "demo_attempts": demos.attempts,
                 "style": asdict(style), "train_steps": steps, "seed": seed,
@@ -246,6 +248,6 @@ Rebuild: `goldenticket train --task {card['policy'].rsplit('/', 1)[0]} --kind {c
 --steps {card['train_steps']} --seed {card['seed']} \\
 --horizon {cfg.horizon} --n-exec {cfg.n_exec} --denoise-steps {cfg.steps} --out DIR`
 (training runs in float32: bit for bit on the same kind of CPU; on another CPU the weights, and so
-the fingerprint and the numbers, differ. Rollouts of these shipped weights are the same on any CPU
-with AVX2 and FMA.)
+the fingerprint and the numbers, differ. Rollouts of these weights give the same episodes on any
+x86-64 CPU with AVX2 and FMA.)
 """

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -44,8 +45,12 @@ class SearchConfig:
 
     def check(self) -> None:
         """Every option, before any episode runs."""
-        for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets",
-                     "stop_after_perfect", "max_steps"):
+        if self.stop_after_perfect is not None and self.stop_after_perfect < 1:
+            raise UserError(f"--stop-after-perfect must be >= 1 (0 on the command line: never), "
+                            f"got {self.stop_after_perfect}")
+        if self.seed < 0:
+            raise UserError(f"--seed must be >= 0, got {self.seed}")
+        for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets", "max_steps"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise UserError(f"--{name.replace('_', '-')} must be > 0, got {getattr(self, name)}")
         if self.objective not in OBJECTIVES:
@@ -55,8 +60,7 @@ class SearchConfig:
         """This run's optimizer, fresh from its seed; UserError if the budget cannot score even
         the first ticket it asks for."""
         optimizer = make_optimizer(self.method, noise_shape, search_seeds, np.random.default_rng(self.seed))
-        first = make_optimizer(self.method, noise_shape, search_seeds, np.random.default_rng(self.seed))
-        needed = len(first.ask()[0].seeds)
+        needed = len(copy.deepcopy(optimizer).ask()[0].seeds)
         if self.budget < needed:
             raise UserError(f"--budget {self.budget} is too small: {self.method} needs {needed} "
                             "episodes to score one ticket")
@@ -70,9 +74,9 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
     optimizer = cfg.optimizer(policy.noise_shape, search_seeds)
     fingerprint = policy.fingerprint()
-    store = _open_store(out, cfg)
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
-    with Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers) as engine:
+    with _open_store(out, cfg, fingerprint) as store, \
+            Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers) as engine:
         evaluator = Evaluator(engine, store)
         with progress_bar(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
@@ -86,7 +90,6 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
-    store.close()
     _adjust_for_multiplicity(judged, [t.id for t in tickets])
     span = [heldout[0], heldout[-1]]
     summary = _summary(cfg, judged, _save_ranked(tickets, judged, out, span), result, span)
@@ -103,7 +106,9 @@ def arm_rows(base: dict, zero: dict, tickets: list[dict]) -> dict[str, dict]:
     return {"base": base, "zero ticket": zero} | {f"ticket {t['ticket_id']}": t for t in tickets}
 
 
-def _open_store(out: Path, cfg: SearchConfig) -> RunStore:
+def _open_store(out: Path, cfg: SearchConfig, fingerprint: str) -> RunStore:
+    """The run store in `out`, holding this config (the policy's fingerprint included: a policy
+    retrained in place is another run)."""
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} is a file; name a folder")
     try:
@@ -111,7 +116,7 @@ def _open_store(out: Path, cfg: SearchConfig) -> RunStore:
     except OSError as exc:
         raise UserError(f"cannot create --out {out}: {exc.strerror}") from None
     store = RunStore(out / "run.sqlite")
-    if not store.claim_config(asdict(cfg) | {"workers": None}):
+    if not store.claim_config(asdict(cfg) | {"workers": None, "policy_fingerprint": fingerprint}):
         store.close()
         raise UserError(f"{out} holds a different run; choose another --out or the same options")
     return store
@@ -185,6 +190,8 @@ def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path],
     and vs zero, Holm-adjusted over the tickets. A ticket found for another policy or task is
     refused unless `allow_transfer`."""
     require_heldout(seeds)
+    if seed < 0:
+        raise UserError(f"--seed must be >= 0, got {seed}")
     policy, task = load_policy(policy_name), get_task(task_name, max_steps)
     tickets = [Ticket.load(p, expected_shape=policy.noise_shape) for p in ticket_paths]
     fingerprint = policy.fingerprint()
