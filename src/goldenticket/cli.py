@@ -181,6 +181,9 @@ def main(argv: list[str] | None = None) -> int:
         return COMMANDS[args.command](args)
     except UserError as exc:
         return _fail(str(exc))
+    except BrokenPipeError:  # `goldenticket tickets list | head`: the reader has gone; say nothing
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except OSError as exc:  # a full disk, a read-only folder, ...: what was recorded stays
         where = f"{exc.filename}: " if exc.filename else ""
         return _fail(f"{where}{exc.strerror or exc}{RESUME.get(args.command, '')}")
