@@ -205,3 +205,20 @@ def test_bundled_tickets_are_listed_and_found_by_id(search_run, capsys, monkeypa
     assert ticket.id in listing and "1000000:1000004" in listing
     assert main(["tickets", "show", ticket.id]) == 0 and ticket.id in capsys.readouterr().out
     assert main(["tickets", "show", "000000000000"]) == 2
+
+
+def test_a_ticket_named_twice_is_judged_once(search_run, policy_dir, tmp_path, capsys):
+    path = json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"]
+    capsys.readouterr()
+    assert main(["evaluate", "--policy", policy_dir, "--task", TASK, "--ticket", path, "--ticket", path,
+                 "--seeds", "1000100:1000102", "--workers", "1", "--plot", str(tmp_path / "e.png"),
+                 "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert len(rows) == 3
+
+
+def test_absurd_worker_counts_are_refused(policy_dir, capsys):
+    for workers in ("0", "100000"):
+        assert main(["evaluate", "--policy", policy_dir, "--task", TASK, "--seeds", "1000000:1000002",
+                     "--workers", workers]) == 2
+        assert "--workers must be between 1" in capsys.readouterr().err

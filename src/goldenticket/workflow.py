@@ -193,13 +193,14 @@ def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path],
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
     policy, task = load_policy(policy_name), get_task(task_name, max_steps)
-    tickets = [Ticket.load(p, expected_shape=policy.noise_shape) for p in ticket_paths]
+    loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape) for path in ticket_paths}
     fingerprint = policy.fingerprint()
-    for path, ticket in zip(ticket_paths, tickets, strict=True):
+    for path, ticket in loaded.items():
         if not allow_transfer:
             ticket.check_fits(fingerprint, task_name, str(path))
         if (searched := ticket.search_seeds()) is not None:
             require_unseen(seeds, searched, f"search seeds of {path}")
+    tickets = list({t.id: t for t in loaded.values()}.values())  # a ticket named twice is judged once
     sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
     sources |= {t.id: Constant(t.noise) for t in tickets}
     with Engine(policy_name, task, workers=workers) as engine:
