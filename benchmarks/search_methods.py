@@ -21,9 +21,9 @@ from goldenticket.evaluation import Evaluator
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import MLPPolicy, load_policy
 from goldenticket.rollout import Engine
-from goldenticket.search import make_optimizer, run_search
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
+from goldenticket.ticket_search import make_optimizer, run_search
 from goldenticket.tickets import Ticket
 from goldenticket.workflow import query_evaluator
 

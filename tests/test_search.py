@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from goldenticket.errors import UserError
-from goldenticket.search import (
+from goldenticket.ticket_search import (
     CEM,
     Candidate,
     CEMRacing,

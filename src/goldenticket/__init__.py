@@ -1,3 +1,34 @@
-"""goldenticket: golden-ticket search for frozen diffusion and flow-matching robot policies."""
+"""goldenticket: golden-ticket search for frozen diffusion and flow-matching robot policies.
+
+`search` and `evaluate` are the Python twins of `goldenticket search` and `goldenticket
+evaluate`: same optimizers, statistics, run store, resume and worker pool. A policy or a task is
+named by a string: a bundled name, a policy folder, or an import string `package.module:factory`
+whose factory returns a NoisePolicy (`goldenticket.policies.NoisePolicy`) or a `gymnasium.Env`,
+so that worker processes can rebuild it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from pathlib import Path
 
 __version__ = "0.1.0"
+
+
+def search(policy: str, task: str, out: str | Path, **options) -> dict:
+    """Search tickets and judge the best on held-out seeds into `out` (resumable); returns the
+    summary (`summary.json`). `options`: the fields of `workflow.SearchConfig` (method, budget,
+    seed, search_seeds, heldout, top_k, objective, stop_after_perfect, max_tickets, workers,
+    max_steps)."""
+    from goldenticket.workflow import SearchConfig, find_golden_tickets
+
+    return find_golden_tickets(SearchConfig(policy, task, **options), Path(out))
+
+
+def evaluate(policy: str, task: str, tickets: Sequence[str | Path] = (),
+             seeds: Iterable[int] = range(1_000_000, 1_000_200), **options) -> dict[str, dict]:
+    """Base, zero ticket and each ticket file on held-out `seeds`, with Wilson intervals and
+    Holm-adjusted paired p-values; `options`: seed, workers, allow_transfer, max_steps."""
+    from goldenticket.workflow import evaluate_tickets
+
+    return evaluate_tickets(policy, task, [Path(t) for t in tickets], list(seeds), **options)

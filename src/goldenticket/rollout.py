@@ -37,33 +37,56 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
             objective: str = "success", envs: list | None = None) -> list[EpisodeResult]:
     """Run episodes side by side: one batched policy call per replanning step for all live envs.
 
-    An env leaves the batch when it succeeds or reaches `task.max_steps`. Each episode's
+    An env leaves the batch when it succeeds, says it is done, or reaches `task.max_steps`. Each episode's
     result depends only on its (source, seed), never on its batch slot.
     """
     n = len(episodes)
     envs = [] if envs is None else envs
     envs += [task.make_env() for _ in range(n - len(envs))]
     start = time.perf_counter()
-    obs = np.stack([env.reset(ep.seed) for env, ep in zip(envs, episodes, strict=False)])
+    obs = [env.reset(ep.seed) for env, ep in zip(envs, episodes, strict=False)]
     samplers = [ep.source.sampler(ep.seed, policy.noise_shape) for ep in episodes]
     length = np.zeros(n, dtype=int)
-    success = np.zeros(n, dtype=bool)
+    success, done = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
     live = list(range(n))
     while live:
         noise = np.stack([samplers[i]() for i in live])
-        chunks = policy.act(obs[live], noise)
+        chunks = checked_actions(policy, policy.act(stack([obs[i] for i in live]), noise), len(live))
         for i, chunk in zip(live, chunks, strict=True):
             for action in chunk:
-                obs[i], _, success[i] = envs[i].step(action)
+                obs[i], _, success[i], done[i] = envs[i].step(action)
                 length[i] += 1
-                if success[i] or length[i] >= task.max_steps:
+                if success[i] or done[i] or length[i] >= task.max_steps:
                     break
-        live = [i for i in live if not success[i] and length[i] < task.max_steps]
+        live = [i for i in live if not (success[i] or done[i]) and length[i] < task.max_steps]
     wall = (time.perf_counter() - start) / max(n, 1)  # episodes ran side by side: the mean
     score = OBJECTIVES[objective]
     return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]),
                                                             task.max_steps), int(length[i]), wall)
             for i, ep in enumerate(episodes)]
+
+
+def stack(observations: list) -> np.ndarray | dict[str, np.ndarray]:
+    """One batch from per-env observations: arrays, or dicts of arrays stacked key by key."""
+    if isinstance(observations[0], dict):
+        return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
+    return np.stack(observations)
+
+
+def checked_actions(policy: NoisePolicy, actions: np.ndarray, batch: int) -> np.ndarray:
+    """The policy's actions if they have the contract's shape [B, n_exec, A] and are finite."""
+    actions = np.asarray(actions)
+    expected = (batch, policy.n_exec, policy.noise_shape[1])
+    if actions.shape != expected:
+        raise UserError(f"policy {_name(policy)!r} returned actions of shape {actions.shape}; the "
+                        f"NoisePolicy contract asks for [B, n_exec, A] = {expected}")
+    if not np.isfinite(actions).all():
+        raise UserError(f"policy {_name(policy)!r} returned NaN or infinite actions")
+    return actions
+
+
+def _name(policy: NoisePolicy) -> str:
+    return getattr(policy, "name", type(policy).__name__)
 
 
 # --- process pool: each worker loads the policy and task once, then runs shards ---------------

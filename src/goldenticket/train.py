@@ -88,7 +88,7 @@ def _expert_episode(expert, env, task, seed, offset, noise, rng):
         action = np.clip(action + noise * rng.standard_normal(task.action_dim), -1, 1)
         obs_seq.append(obs)
         act_seq.append(action.astype(np.float32))
-        obs, _, success = env.step(action)
+        obs, _, success, _ = env.step(action)
         if success:
             break
     return np.array(obs_seq), np.array(act_seq), success
@@ -169,6 +169,8 @@ def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: D
         raise UserError(f"--out {out} already exists; choose a new folder")
     seeds_in("heldout", heldout)  # a UserError now, not after training
     task = get_task(task_name)
+    if not isinstance(task, MetaWorldTask):
+        raise UserError(f"train needs a built-in Meta-World task (scripted experts), got {task_name!r}")
     name = f"{task_name}/{kind}"
     cfg = PolicyConfig(name, kind, task.obs_dim, task.action_dim, horizon, n_exec,
                        steps=denoise_steps)

@@ -15,13 +15,14 @@ from goldenticket.evaluation import Evaluator, Judged, judge, p_value_note
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import arms_png, search_png
+from goldenticket.policies import fingerprint as policy_fingerprint
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine
-from goldenticket.search import EpisodeOutcome, SearchResult, make_optimizer, run_search
 from goldenticket.stats import holm_adjust
 from goldenticket.store import RunStore
 from goldenticket.tasks import OBJECTIVES, get_task, seeds_in
 from goldenticket.tasks.base import require_heldout, require_unseen
+from goldenticket.ticket_search import EpisodeOutcome, SearchResult, make_optimizer, run_search
 from goldenticket.tickets import Ticket, zero_ticket
 
 
@@ -73,7 +74,8 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     policy, task = load_policy(cfg.policy), get_task(cfg.task, cfg.max_steps)
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
     optimizer = cfg.optimizer(policy.noise_shape, search_seeds)
-    fingerprint = policy.fingerprint()
+    fingerprint = policy_fingerprint(policy, cfg.policy)
+    task.check()
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     with _open_store(out, cfg, fingerprint) as store, \
             Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers) as engine:
@@ -194,13 +196,14 @@ def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path],
         raise UserError(f"--seed must be >= 0, got {seed}")
     policy, task = load_policy(policy_name), get_task(task_name, max_steps)
     loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape) for path in ticket_paths}
-    fingerprint = policy.fingerprint()
+    fingerprint = policy_fingerprint(policy, policy_name)
     for path, ticket in loaded.items():
         if not allow_transfer:
             ticket.check_fits(fingerprint, task_name, str(path))
         if (searched := ticket.search_seeds()) is not None:
             require_unseen(seeds, searched, f"search seeds of {path}")
     tickets = list({t.id: t for t in loaded.values()}.values())  # a ticket named twice is judged once
+    task.check()
     sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
     sources |= {t.id: Constant(t.noise) for t in tickets}
     with Engine(policy_name, task, workers=workers) as engine:

@@ -6,9 +6,11 @@ from goldenticket.policies.registry import (
     BUNDLED_DIR,
     bundled_tickets,
     find_ticket,
+    fingerprint,
     load_policy,
     policy_names,
 )
 
 __all__ = ["BUNDLED_DIR", "MLPPolicy", "NoisePolicy", "PolicyConfig", "TicketedPolicy",
-           "bundled_tickets", "find_ticket", "load_policy", "policy_names"]
+           "bundled_tickets", "find_ticket", "fingerprint", "load_policy",
+           "policy_names"]

@@ -13,7 +13,9 @@ class NoisePolicy(Protocol):
     `noise_shape` is (H, A): prediction horizon x action dim. `act` returns the first
     `n_exec` actions of each predicted chunk; the caller replans after executing them. Each
     row's actions must not depend on the other rows, so that an episode's result does not
-    depend on its batch slot.
+    depend on its batch slot. Observations come as the env gives them, stacked over the batch:
+    an array [B, ...] (any float dtype) or a dict of such arrays (camera images and state).
+    Optional: `name`, and `fingerprint()` naming the weights (tickets record it).
     """
 
     name: str
@@ -21,7 +23,7 @@ class NoisePolicy(Protocol):
     n_exec: int
 
     def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        """obs [B, obs_dim] float32, noise [B, H, A] float32 -> actions [B, n_exec, A]."""
+        """obs [B, ...] or {key: [B, ...]}, noise [B, H, A] float32 -> actions [B, n_exec, A]."""
         ...
 
 

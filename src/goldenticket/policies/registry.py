@@ -7,9 +7,12 @@ e.g. `metaworld/pick-place-v3/ddim@2`; the weights are the same, only inference 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from pathlib import Path
 
 from goldenticket.errors import UserError
+from goldenticket.factories import build, is_import_string
+from goldenticket.policies.base import NoisePolicy
 from goldenticket.policies.mlp import MLPPolicy
 
 BUNDLED_DIR = Path(__file__).parent / "bundled"
@@ -50,9 +53,12 @@ def split_steps(name: str) -> tuple[str, int | None]:
     return base, int(steps)
 
 
-def load_policy(name: str) -> MLPPolicy:
-    """A bundled policy by name, or a policy directory (config.json + model.safetensors);
-    an `@N` suffix sets the number of denoising steps."""
+def load_policy(name: str) -> NoisePolicy:
+    """A bundled policy by name, a policy directory (config.json + model.safetensors), where an
+    `@N` suffix sets the number of denoising steps, or any NoisePolicy built by an import string
+    `package.module:factory`."""
+    if is_import_string(name):
+        return _checked(build(name, "policy"), name)
     base, steps = split_steps(name)
     path = Path(base)
     if not (path / "config.json").is_file():
@@ -63,3 +69,24 @@ def load_policy(name: str) -> MLPPolicy:
     if steps is None:
         return policy
     return MLPPolicy(dataclasses.replace(policy.cfg, name=name, steps=steps), policy.model)
+
+
+def _checked(policy, name: str) -> NoisePolicy:
+    """The object if it looks like a NoisePolicy, else a one-line UserError saying what is off."""
+    shape = getattr(policy, "noise_shape", None)
+    if not (isinstance(shape, tuple | list) and len(shape) == 2 and all(isinstance(d, int) and d >= 1
+                                                                       for d in shape)):
+        raise UserError(f"policy {name!r}: noise_shape must be (H, A) with H, A >= 1, got {shape!r}")
+    if not (isinstance(getattr(policy, "n_exec", None), int) and policy.n_exec >= 1):
+        raise UserError(f"policy {name!r}: n_exec must be an integer >= 1")
+    if not callable(getattr(policy, "act", None)):
+        raise UserError(f"policy {name!r}: needs act(obs, noise[B, H, A]) -> actions[B, n_exec, A]")
+    return policy
+
+
+def fingerprint(policy: NoisePolicy, name: str) -> str:
+    """What a ticket is found for: the policy's own `fingerprint()` (bundled policies: weights hash
+    and step count) or, for a policy that has none, a hash of the name that builds it."""
+    if callable(getattr(policy, "fingerprint", None)):
+        return policy.fingerprint()
+    return "name-" + hashlib.sha256(name.encode()).hexdigest()[:16]

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -62,20 +63,31 @@ OBJECTIVES: dict[str, Callable[[bool, int, int], float]] = {
 }
 
 
+def quiet_env_warnings() -> None:
+    """Silence warnings raised from inside gymnasium and metaworld (the passive env checker's),
+    so users see our output."""
+    warnings.filterwarnings("ignore", module=r"gymnasium(\.|$)")
+    warnings.filterwarnings("ignore", module=r"metaworld(\.|$)")
+
+
 class Env(Protocol):
-    """One environment instance whose initial state is a function of an integer seed."""
+    """One environment instance whose initial state is a function of an integer seed.
+    Observations are arrays or dicts of arrays."""
 
-    def reset(self, seed: int) -> np.ndarray: ...
+    def reset(self, seed: int) -> Any: ...
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool]:
-        """Apply one action; returns (observation, reward, success)."""
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool]:
+        """Apply one action; returns (observation, reward, success, done)."""
         ...
 
 
 class Task(Protocol):
+    """Builds envs; `name` rebuilds the task in a worker process (`tasks.get_task`)."""
+
     name: str
-    obs_dim: int
-    action_dim: int
     max_steps: int
 
     def make_env(self) -> Env: ...
+
+    def check(self) -> None:
+        """UserError if the same seed does not give the same initial state."""

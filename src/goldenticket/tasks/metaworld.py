@@ -2,21 +2,18 @@
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
 
-from goldenticket.errors import UserError
+from goldenticket.tasks.base import quiet_env_warnings
 
 
 @cache
 def _env_classes() -> dict:
-    """Meta-World's v3 env classes; first silences warnings raised from inside gymnasium and
-    metaworld (the passive checker's obs-space warnings), so users see our output."""
-    warnings.filterwarnings("ignore", module=r"gymnasium(\.|$)")
-    warnings.filterwarnings("ignore", module=r"metaworld(\.|$)")
+    """Meta-World's v3 env classes, once the known warnings are quiet."""
+    quiet_env_warnings()
     from metaworld.env_dict import ALL_V3_ENVIRONMENTS
 
     return dict(ALL_V3_ENVIRONMENTS)
@@ -48,9 +45,9 @@ class MetaWorldEnv:
         obs, _ = self._env.reset()
         return obs.astype(np.float32)
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool]:
-        obs, reward, _, _, info = self._env.step(np.asarray(action, dtype=np.float64))
-        return obs.astype(np.float32), float(reward), bool(info["success"])
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
+        obs, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float64))
+        return obs.astype(np.float32), float(reward), bool(info["success"]), bool(terminated or truncated)
 
 
 @dataclass(frozen=True)
@@ -69,12 +66,5 @@ class MetaWorldTask:
     def make_env(self) -> MetaWorldEnv:
         return MetaWorldEnv(self.env_name)
 
-
-def get_task(name: str, max_steps: int | None = None) -> MetaWorldTask:
-    """Look up a task by name; unknown names are a UserError listing a few valid ones."""
-    if name not in task_names():
-        hint = ", ".join(n for n in task_names() if "pick" in n or "reach" in n)
-        raise UserError(f"unknown task {name!r}; tasks look like: {hint}")
-    if max_steps is not None and max_steps < 1:
-        raise UserError(f"--max-steps must be >= 1, got {max_steps}")
-    return MetaWorldTask(name) if max_steps is None else MetaWorldTask(name, max_steps)
+    def check(self) -> None:
+        """Nothing to check: reset(seed) reseeds the env's generator (tests/test_tasks.py)."""

@@ -1,12 +1,12 @@
 """Black-box search for golden tickets: pure ask/tell optimizers and the budgeted driver."""
 
-from goldenticket.search.driver import (
+from goldenticket.ticket_search.driver import (
     Candidate,
     EpisodeOutcome,
     SearchResult,
     run_search,
 )
-from goldenticket.search.optimizers import (
+from goldenticket.ticket_search.optimizers import (
     CEM,
     OPTIMIZERS,
     CEMRacing,

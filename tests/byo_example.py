@@ -1,0 +1,107 @@
+"""A policy and environments written outside goldenticket, named by import strings in tests."""
+
+import gymnasium as gym
+import numpy as np
+
+from goldenticket.tasks.metaworld import MetaWorldEnv
+
+
+class PointReach(gym.Env):
+    """Move a point to a goal in 2-D; start and goal come from reset's seed; dict observations."""
+
+    box = gym.spaces.Box(-2.0, 2.0, (2,), np.float64)
+    observation_space = gym.spaces.Dict({"pos": box, "goal": box})
+    action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float64)
+
+    def reset(self, seed=None, options=None):
+        super().reset(seed=seed)
+        self.pos, self.goal = self.np_random.uniform(-1, 1, 2), self.np_random.uniform(-1, 1, 2)
+        return self._obs(), {}
+
+    def step(self, action):
+        self.pos = np.clip(self.pos + 0.1 * np.clip(action, -1, 1), -2, 2)
+        distance = float(np.linalg.norm(self.pos - self.goal))
+        return self._obs(), -distance, False, False, {"is_success": distance < 0.05}
+
+    def _obs(self):
+        return {"pos": self.pos.copy(), "goal": self.goal.copy()}
+
+
+class BiasedController:
+    """Heads for the goal but aims off target; the injected noise shifts its aim."""
+
+    noise_shape, n_exec, name = (4, 2), 2, "biased-controller"
+
+    def act(self, obs, noise):
+        heading = 5 * (obs["goal"] - obs["pos"]) + np.array([0.6, -0.4])
+        return np.clip(heading[:, None, :] + noise, -1, 1)[:, : self.n_exec]
+
+
+class Unseeded(PointReach):
+    def reset(self, seed=None, options=None):
+        super().reset(seed=None)
+        return self._obs(), {}
+
+
+class Silent(PointReach):
+    def step(self, action):
+        obs, reward, terminated, truncated, _ = super().step(action)
+        return obs, reward, terminated, truncated, {}
+
+
+class SeededMetaWorld(gym.Env):
+    """The built-in Meta-World reach task behind the plain Gymnasium interface."""
+
+    def __init__(self):
+        self.env = MetaWorldEnv("reach-v3")
+
+    def reset(self, seed=None, options=None):
+        return self.env.reset(seed), {}
+
+    def step(self, action):
+        obs, reward, success, done = self.env.step(action)
+        return obs, reward, False, done, {"success": success}
+
+
+class WrongShape(BiasedController):
+    def act(self, obs, noise):
+        return super().act(obs, noise)[:, 0]
+
+
+class NaNActions(BiasedController):
+    def act(self, obs, noise):
+        return super().act(obs, noise) * np.nan
+
+
+def make_env():
+    return PointReach()
+
+
+def make_policy():
+    return BiasedController()
+
+
+def make_unseeded_env():
+    return Unseeded()
+
+
+def make_silent_env():
+    return Silent()
+
+
+def make_metaworld_reach():
+    return SeededMetaWorld()
+
+
+def make_metaworld_gym():
+    import metaworld  # noqa: F401  (registers Meta-World's own gym ids)
+
+    return gym.make("Meta-World/MT1", env_name="reach-v3")
+
+
+def make_wrong_shape_policy():
+    return WrongShape()
+
+
+def make_nan_policy():
+    return NaNActions()

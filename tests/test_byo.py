@@ -1,0 +1,81 @@
+"""A policy and an environment of the user's, named `module:factory`, through the CLI, the API
+and the workers, with the same checks and results as the bundled ones."""
+
+import json
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+import goldenticket
+from goldenticket.noise import Constant, Gaussian
+from goldenticket.policies import load_policy
+from goldenticket.rollout import Episode, rollout
+from goldenticket.tasks import get_task, seeds_in
+
+HERE = Path(__file__).parent
+SEARCH = ["search", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env",
+          "--max-steps", "30", "--budget", "400", "--search-seeds", "20", "--heldout", "50", "--top-k", "2"]
+
+
+def _cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "goldenticket.cli", *argv], capture_output=True,
+                          text=True, timeout=300, cwd=HERE)
+
+
+def test_search_and_evaluate_from_the_cli_resume_and_agree_with_the_api(tmp_path):
+    out = tmp_path / "cli"
+    first = _cli(*SEARCH, "--workers", "2", "--out", str(out))
+    assert first.returncode == 0, first.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["base"]["n"] == 50 and summary["best"]["golden"]
+    assert _cli(*SEARCH, "--workers", "1", "--out", str(out)).returncode == 0  # resumes
+    assert json.loads((out / "summary.json").read_text()) == summary
+    ticket = summary["best"]["ticket_path"]
+    evaluated = _cli("evaluate", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env",
+                     "--max-steps", "30", "--ticket", ticket, "--seeds", "1000100:1000200",
+                     "--plot", str(tmp_path / "e.png"))
+    assert evaluated.returncode == 0 and "Golden ticket" in evaluated.stdout, evaluated.stderr  # fresh seeds
+
+    sys.path.insert(0, str(HERE))
+    api = goldenticket.search("byo_example:make_policy", "byo_example:make_env", tmp_path / "api",
+                              max_steps=30, budget=400, search_seeds=20, heldout=50, top_k=2, workers=1)
+    assert [t["ticket_id"] for t in api["tickets"]] == [t["ticket_id"] for t in summary["tickets"]]
+    rows = goldenticket.evaluate("byo_example:make_policy", "byo_example:make_env", [ticket],
+                                 range(1000100, 1000110), max_steps=30, workers=1)
+    assert rows["base"]["n"] == 10 and len(rows) == 3
+
+
+def test_the_builtin_task_through_the_gymnasium_door_gives_the_same_episodes():
+    sys.path.insert(0, str(HERE))
+    policy = load_policy("metaworld/reach-v3/flow")
+    episodes = [Episode(source, s) for s in seeds_in("heldout", 6)
+                for source in (Gaussian(0), Constant(np.full(policy.noise_shape, 0.3, np.float32)))]
+    builtin = rollout(policy, get_task("metaworld/reach-v3"), episodes)
+    generic = rollout(policy, get_task("byo_example:make_metaworld_reach", 150), episodes)
+    key = [(r.success, r.length, r.ret) for r in builtin]
+    assert key == [(r.success, r.length, r.ret) for r in generic]
+    assert 0 < sum(r.success for r in builtin) < len(builtin)
+
+
+def test_users_mistakes_are_one_line_and_exit_2(tmp_path):
+    base = ["evaluate", "--seeds", "1000000:1000004", "--max-steps", "30", "--workers", "1",
+            "--plot", str(tmp_path / "e.png")]
+    policy, env = ["--policy", "byo_example:make_policy"], ["--task", "byo_example:make_env"]
+    cases = {
+        "non-deterministic reset": [*base, *policy, "--task", "byo_example:make_unseeded_env"],
+        "wrong action shape": [*base, *env, "--policy", "byo_example:make_wrong_shape_policy"],
+        "NaN actions": [*base, *env, "--policy", "byo_example:make_nan_policy"],
+        "no success signal": [*base, *policy, "--task", "byo_example:make_silent_env"],
+        "module not found": [*base, *env, "--policy", "no_such_module:make"],
+        "factory not found": [*base, *env, "--policy", "byo_example:no_such_factory"],
+        "Meta-World's own env": [*base, *policy, "--task", "byo_example:make_metaworld_gym"],
+    }
+    with ThreadPoolExecutor(2) as pool:
+        for name, proc in zip(cases, pool.map(lambda argv: _cli(*argv), cases.values()), strict=True):
+            assert proc.returncode == 2, (name, proc.stderr)
+            errors = [line for line in proc.stderr.splitlines() if "error" in line]
+            assert len(errors) == 1 and "Traceback" not in proc.stderr, (name, proc.stderr)
+    assert "issue #555" in _cli(*cases["Meta-World's own env"]).stderr
