@@ -15,9 +15,9 @@ from goldenticket import __version__
 from goldenticket.errors import UserError
 
 DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
-POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder written by `train`; " \
-              "append @N to run N denoising steps"
-TASK_HELP = "task name, e.g. metaworld/pick-place-v3"
+POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder written by `train` " \
+              "(append @N to run N denoising steps), or package.module:factory returning a NoisePolicy"
+TASK_HELP = "task name, e.g. metaworld/pick-place-v3, or package.module:factory returning a gymnasium.Env"
 MAX_STEPS_HELP = "episode step limit (default: the task's, 150 for Meta-World)"
 RESUME = dict.fromkeys(("demo", "search"), " (finished episodes are kept in --out: rerun the same "
                                            "command to resume)")
