@@ -74,6 +74,15 @@ class Denoiser(nn.Module):
         return (x.clamp(-1, 1) + 1) / 2 * (self.act_high - self.act_low) + self.act_low
 
 
+def state_hash(state: dict[str, torch.Tensor]) -> str:
+    """16 hex chars of sha256 over a state dict's names and values."""
+    digest = hashlib.sha256()
+    for key, value in sorted(state.items()):
+        digest.update(key.encode())
+        digest.update(value.detach().contiguous().numpy().tobytes())
+    return digest.hexdigest()[:16]
+
+
 def ddim_alpha_bar(t: torch.Tensor) -> torch.Tensor:
     """Cosine schedule: cumulative signal fraction at continuous time t in [0, 1]."""
     return torch.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2
@@ -150,11 +159,7 @@ class MLPPolicy:
         return f"{self.weights_hash()}@{self.cfg.steps}"
 
     def weights_hash(self) -> str:
-        digest = hashlib.sha256()
-        for key, value in sorted(self.model.state_dict().items()):
-            digest.update(key.encode())
-            digest.update(value.detach().contiguous().numpy().tobytes())
-        return digest.hexdigest()[:16]
+        return state_hash(self.model.state_dict())
 
     def save(self, directory: Path) -> None:
         write_atomic(directory / "model.safetensors", save(self.model.state_dict()))
