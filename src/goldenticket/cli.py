@@ -18,6 +18,7 @@ DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v
 POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder written by `train` " \
               "(append @N to run N denoising steps), or package.module:factory returning a NoisePolicy"
 TASK_HELP = "task name, e.g. metaworld/pick-place-v3, or package.module:factory returning a gymnasium.Env"
+WORKERS_HELP = "worker processes (results do not depend on it)"
 MAX_STEPS_HELP = "episode step limit (default: the task's, 150 for Meta-World)"
 RESUME = dict.fromkeys(("demo", "search"), " (finished episodes are kept in --out: rerun the same "
                                            "command to resume)")
@@ -75,7 +76,7 @@ def _run_args(p: argparse.ArgumentParser) -> None:
                    help="output folder: run.sqlite (every episode; rerun to resume), summary.json, "
                         "tickets/, verdict.png, search.png")
     p.add_argument("--seed", type=_seed, default=0, help="seed of every random draw")
-    p.add_argument("--workers", type=int, default=2, help="worker processes (results do not depend on it)")
+    p.add_argument("--workers", type=int, default=2, help=WORKERS_HELP)
 
 
 def _search_parser(sub) -> None:
@@ -112,7 +113,7 @@ def _evaluate_parser(sub) -> None:
                     help="held-out seed range A:B (seeds 1000000:2000000 name held-out states)")
     ev.add_argument("--seed", type=_seed, default=0, help="seed of the base policy's Gaussian noise")
     ev.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
-    ev.add_argument("--workers", type=int, default=2, help="worker processes (results do not depend on it)")
+    ev.add_argument("--workers", type=int, default=2, help=WORKERS_HELP)
     ev.add_argument("--allow-transfer", action="store_true",
                     help="run tickets found for another policy or task (transfer studies)")
     ev.add_argument("--plot", type=Path, default=Path("evaluate.png"),

@@ -114,9 +114,9 @@ class Engine:
 
     def __init__(self, policy_name: str, task: Task, *, objective: str = "success",
                  workers: int = 1, shard_size: int = 32):
-        if not 1 <= workers <= 4 * (os.cpu_count() or 1):
-            raise UserError(f"--workers must be between 1 and {4 * (os.cpu_count() or 1)} "
-                            f"(4 per CPU here), got {workers}")
+        most = 4 * (os.cpu_count() or 1)
+        if not 1 <= workers <= most:
+            raise UserError(f"--workers must be between 1 and {most} (4 per CPU here), got {workers}")
         self.policy = load_policy(policy_name) if workers == 1 else None
         self.task, self.objective, self.shard_size = task, objective, shard_size
         self._envs: list = []

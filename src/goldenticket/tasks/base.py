@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
@@ -63,9 +64,10 @@ OBJECTIVES: dict[str, Callable[[bool, int, int], float]] = {
 }
 
 
+@functools.cache
 def quiet_env_warnings() -> None:
     """Silence warnings raised from inside gymnasium and metaworld (the passive env checker's),
-    so users see our output."""
+    so users see our output; installed once per process."""
     warnings.filterwarnings("ignore", module=r"gymnasium(\.|$)")
     warnings.filterwarnings("ignore", module=r"metaworld(\.|$)")
 
