@@ -90,6 +90,11 @@ def make_silent_env():
     return Silent()
 
 
+def within_reach(obs, info):
+    """A success predicate for Silent, the same rule as PointReach's info["is_success"]."""
+    return bool(np.linalg.norm(obs["pos"] - obs["goal"]) < 0.05)
+
+
 def make_metaworld_reach():
     return SeededMetaWorld()
 

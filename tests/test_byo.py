@@ -8,8 +8,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import goldenticket
+from goldenticket.errors import UserError
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Episode, rollout
@@ -46,6 +48,27 @@ def test_search_and_evaluate_from_the_cli_resume_and_agree_with_the_api(tmp_path
     rows = goldenticket.evaluate("byo_example:make_policy", "byo_example:make_env", [ticket],
                                  range(1000100, 1000110), max_steps=30, workers=1)
     assert rows["base"]["n"] == 10 and len(rows) == 3
+
+
+def test_the_api_takes_objects_and_a_success_predicate(tmp_path):
+    sys.path.insert(0, str(HERE))
+    import byo_example
+
+    options = dict(max_steps=30, budget=160, search_seeds=20, heldout=30, top_k=1)
+    by_name = goldenticket.search("byo_example:make_policy", "byo_example:make_env", tmp_path / "n",
+                                  workers=1, **options)
+    by_object = goldenticket.search(byo_example.BiasedController(), byo_example.make_silent_env,
+                                    tmp_path / "o", success=byo_example.within_reach, workers=2, **options)
+    assert by_object["task"] == "byo_example:make_silent_env" and by_object["policy"] == "biased-controller"
+    assert by_object["base"] == by_name["base"] and by_object["zero"] == by_name["zero"]
+    assert by_object["best"]["success_rate"] == by_name["best"]["success_rate"]
+    rows = goldenticket.evaluate(byo_example.BiasedController(), byo_example.make_silent_env,
+                                 [by_object["best"]["ticket_path"]], range(1000100, 1000120),
+                                 success="byo_example:within_reach", max_steps=30, workers=1)
+    assert rows["base"]["n"] == 20 and len(rows) == 3
+    with pytest.raises(UserError, match="cannot be sent to a worker process"):
+        goldenticket.search(byo_example.BiasedController(), lambda: byo_example.PointReach(),
+                            tmp_path / "l", workers=1, **options)
 
 
 def test_the_builtin_task_through_the_gymnasium_door_gives_the_same_episodes():

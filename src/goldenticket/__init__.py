@@ -1,10 +1,18 @@
 """goldenticket: golden-ticket search for frozen diffusion and flow-matching robot policies.
 
 `search` and `evaluate` are the Python twins of `goldenticket search` and `goldenticket
-evaluate`: same optimizers, statistics, run store, resume and worker pool. A policy or a task is
-named by a string: a bundled name, a policy folder, or an import string `package.module:factory`
-whose factory returns a NoisePolicy (`goldenticket.policies.NoisePolicy`) or a `gymnasium.Env`,
-so that worker processes can rebuild it.
+evaluate`: same optimizers, statistics, run store, resume and worker pool.
+
+- `policy`: a NoisePolicy object (`goldenticket.policies.NoisePolicy`: `noise_shape`, `n_exec`,
+  `act(obs, noise)`), a bundled policy name, a policy folder, or an import string
+  `package.module:factory` whose factory returns a NoisePolicy.
+- `task`: a built-in task name (`metaworld/pick-place-v3`), or a function returning a
+  `gymnasium.Env` whose `reset(seed=s)` fixes the initial state, or its import string.
+  `success=`: a predicate `(obs, info) -> bool` (or its import string) when the env's info
+  has no `success` / `is_success`.
+
+With `workers` > 1, worker processes receive objects pickled: define factories and predicates
+at module level (and guard a script's entry point with `if __name__ == "__main__":`).
 """
 
 from __future__ import annotations
@@ -15,20 +23,20 @@ from pathlib import Path
 __version__ = "0.1.0"
 
 
-def search(policy: str, task: str, out: str | Path, **options) -> dict:
+def search(policy, task, out: str | Path, **options) -> dict:
     """Search tickets and judge the best on held-out seeds into `out` (resumable); returns the
     summary (`summary.json`). `options`: the fields of `workflow.SearchConfig` (method, budget,
     seed, search_seeds, heldout, top_k, objective, stop_after_perfect, max_tickets, workers,
-    max_steps)."""
+    max_steps, success)."""
     from goldenticket.workflow import SearchConfig, find_golden_tickets
 
     return find_golden_tickets(SearchConfig(policy, task, **options), Path(out))
 
 
-def evaluate(policy: str, task: str, tickets: Sequence[str | Path] = (),
+def evaluate(policy, task, tickets: Sequence[str | Path] = (),
              seeds: Iterable[int] = range(1_000_000, 1_000_200), **options) -> dict[str, dict]:
     """Base, zero ticket and each ticket file on held-out `seeds`, with Wilson intervals and
-    Holm-adjusted paired p-values; `options`: seed, workers, allow_transfer, max_steps."""
+    Holm-adjusted paired p-values; `options`: seed, workers, allow_transfer, max_steps, success."""
     from goldenticket.workflow import evaluate_tickets
 
     return evaluate_tickets(policy, task, [Path(t) for t in tickets], list(seeds), **options)

@@ -20,6 +20,8 @@ POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder wri
 TASK_HELP = "task name, e.g. metaworld/pick-place-v3, or package.module:factory returning a gymnasium.Env"
 WORKERS_HELP = "worker processes (results do not depend on it)"
 MAX_STEPS_HELP = "episode step limit (default: the task's, 150 for Meta-World)"
+SUCCESS_HELP = "Gymnasium tasks: package.module:function(obs, info) -> bool deciding success " \
+               "(default: info['success'] or info['is_success'])"
 RESUME = dict.fromkeys(("demo", "search"), " (finished episodes are kept in --out: rerun the same "
                                            "command to resume)")
 
@@ -99,6 +101,7 @@ def _search_parser(sub) -> None:
                         choices=["success", "discounted-success", "length"],
                         help="episode return the search maximises")
     search.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
+    search.add_argument("--success", default=None, help=SUCCESS_HELP)
     _run_args(search)
 
 
@@ -113,6 +116,7 @@ def _evaluate_parser(sub) -> None:
                     help="held-out seed range A:B (seeds 1000000:2000000 name held-out states)")
     ev.add_argument("--seed", type=_seed, default=0, help="seed of the base policy's Gaussian noise")
     ev.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
+    ev.add_argument("--success", default=None, help=SUCCESS_HELP)
     ev.add_argument("--workers", type=int, default=2, help=WORKERS_HELP)
     ev.add_argument("--allow-transfer", action="store_true",
                     help="run tickets found for another policy or task (transfer studies)")
@@ -221,7 +225,8 @@ def _search(args) -> int:
 
     cfg = SearchConfig(args.policy, args.task, args.method, args.budget, args.seed,
                        args.search_seeds, args.heldout, args.top_k, args.objective,
-                       args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps)
+                       args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
+                       args.success)
     return _run_search(cfg, args.out)
 
 
@@ -249,7 +254,7 @@ def _evaluate(args) -> int:
     if args.plot.is_dir() or not folder.is_dir() or not os.access(folder, os.W_OK):
         raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
     rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
-                            args.allow_transfer, args.max_steps)
+                            args.allow_transfer, args.max_steps, args.success)
     tickets = [r | {"ticket_id": label} for label, r in rows.items() if label not in ("base", "zero")]
     arms = arm_rows(rows["base"], rows["zero"], tickets)
     best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],

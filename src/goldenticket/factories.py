@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import functools
 import importlib
+import multiprocessing as mp
 import os
+import pickle
 import sys
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from goldenticket.errors import UserError
@@ -18,9 +22,9 @@ def is_import_string(name: str) -> bool:
     return bool(colon and module and attr) and not Path(name).exists()
 
 
-def build(name: str, what: str):
-    """Import `package.module` (the current folder is on the path, as for `python -m`) and call
-    its `factory` with no arguments; every failure is a one-line UserError naming `what`."""
+def resolve(name: str, what: str):
+    """The callable `factory` of `package.module` (the current folder is on the path, as for
+    `python -m`); every failure is a one-line UserError naming `what`."""
     module_name, _, attr = name.partition(":")
     if os.getcwd() not in sys.path:
         sys.path.insert(0, os.getcwd())
@@ -34,7 +38,45 @@ def build(name: str, what: str):
         raise UserError(f"{what} {name!r}: {module_name} has no {attr}") from None
     if not callable(factory):
         raise UserError(f"{what} {name!r}: {attr} is not callable")
+    return factory
+
+
+def build(factory, what: str):
+    """Call `factory` (a callable or an import string naming one) with no arguments; its failure
+    is a one-line UserError naming `what`."""
+    label = factory if isinstance(factory, str) else import_name(factory)
+    if isinstance(factory, str):
+        factory = resolve(factory, what)
     try:
         return factory()
     except Exception as exc:  # the user's code: report it in one line
-        raise UserError(f"{what} {name!r}: {attr}() failed: {type(exc).__name__}: {exc}") from None
+        raise UserError(f"{what} {label!r}: {label.rpartition(':')[2]}() failed: "
+                        f"{type(exc).__name__}: {exc}") from None
+
+
+def import_name(obj) -> str:
+    """`module:qualname` of a function or class (an instance: of its class), the name a worker
+    process would import it by."""
+    target = obj if hasattr(obj, "__qualname__") else type(obj)
+    return f"{target.__module__}:{target.__qualname__}"
+
+
+def picklable(obj, what: str) -> None:
+    """UserError unless `obj` can be sent to a worker process (pickled by reference to an
+    importable module, as multiprocessing does)."""
+    try:
+        pickle.dumps(obj)
+    except Exception as exc:  # pickle raises several types for a lambda, a local or a lock
+        raise UserError(f"{what} cannot be sent to a worker process ({type(exc).__name__}: {exc}); "
+                        "define it at module level, or name it by an import string") from None
+
+
+def in_another_process(fn, *args, what: str):
+    """`fn(*args)` in a fresh spawned process, the way worker processes rebuild the user's objects."""
+    picklable(args, what)
+    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
+        try:
+            return pool.submit(fn, *args).result()
+        except BrokenProcessPool:
+            raise UserError(f"{what}: another process could not rebuild it (is its module "
+                            "importable there?)") from None

@@ -14,8 +14,9 @@ import torch
 
 from goldenticket.errors import UserError
 from goldenticket.noise import NoiseSource
-from goldenticket.policies import NoisePolicy, load_policy
-from goldenticket.tasks import OBJECTIVES, Task, get_task
+from goldenticket.factories import picklable
+from goldenticket.policies import NoisePolicy, load_policy, policy_label
+from goldenticket.tasks import OBJECTIVES, Task
 
 
 @dataclass(frozen=True)
@@ -93,11 +94,10 @@ def _name(policy: NoisePolicy) -> str:
 _worker: dict = {}
 
 
-def _init_worker(policy_name: str, task_name: str, max_steps: int, objective: str) -> None:
+def _init_worker(policy: str | NoisePolicy, task: Task, objective: str) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle
     torch.set_num_threads(1)
-    _worker.update(policy=load_policy(policy_name), task=get_task(task_name, max_steps),
-                   objective=objective, envs=[])
+    _worker.update(policy=load_policy(policy), task=task, objective=objective, envs=[])
 
 
 def _run_shard(episodes: list[Episode]) -> list[EpisodeResult]:
@@ -112,19 +112,18 @@ class Engine:
     results for the same episodes.
     """
 
-    def __init__(self, policy_name: str, task: Task, *, objective: str = "success",
+    def __init__(self, policy: str | NoisePolicy, task: Task, *, objective: str = "success",
                  workers: int = 1, shard_size: int = 32):
         most = 4 * (os.cpu_count() or 1)
         if not 1 <= workers <= most:
             raise UserError(f"--workers must be between 1 and {most} (4 per CPU here), got {workers}")
-        self.policy = load_policy(policy_name) if workers == 1 else None
+        self.policy = load_policy(policy) if workers == 1 else None
         self.task, self.objective, self.shard_size = task, objective, shard_size
         self._envs: list = []
         self._pool = None
-        if workers > 1:
-            ctx = mp.get_context("spawn")
-            self._pool = ctx.Pool(workers, _init_worker,
-                                  (policy_name, task.name, task.max_steps, objective))
+        if workers > 1:  # each worker rebuilds a named policy, or unpickles a policy object
+            picklable((policy, task), f"policy {policy_label(policy)!r} or task {task.name!r}")
+            self._pool = mp.get_context("spawn").Pool(workers, _init_worker, (policy, task, objective))
 
     def evaluate(self, episodes: Sequence[Episode],
                  on_shard: Callable[[int, list[EpisodeResult]], None] | None = None

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import copy
 import json
-from dataclasses import asdict, dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -12,11 +13,12 @@ from tqdm import tqdm
 
 from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator, Judged, judge, p_value_note
+from goldenticket.factories import import_name
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import arms_png, search_png
 from goldenticket.policies import fingerprint as policy_fingerprint
-from goldenticket.policies import load_policy
+from goldenticket.policies import NoisePolicy, load_policy, policy_label
 from goldenticket.rollout import Engine
 from goldenticket.stats import holm_adjust
 from goldenticket.store import RunStore
@@ -30,8 +32,8 @@ from goldenticket.tickets import Ticket, zero_ticket
 class SearchConfig:
     """One search run; the same config and seed always give the same numbers."""
 
-    policy: str
-    task: str
+    policy: str | NoisePolicy  # a name or import string (see policies.load_policy), or the object
+    task: str | Callable  # a task name, or a gymnasium.Env factory or its import string
     method: str = "cem-racing"
     budget: int = 1500  # search episodes
     seed: int = 0
@@ -43,6 +45,7 @@ class SearchConfig:
     max_tickets: int | None = None
     workers: int = 2
     max_steps: int | None = None  # None: the task's own limit
+    success: str | Callable | None = None  # Gymnasium tasks: predicate (obs, info) -> bool
 
     def check(self) -> None:
         """Every option, before any episode runs."""
@@ -71,32 +74,32 @@ class SearchConfig:
 def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     """Run the whole job into `out`; resumes from `out/run.sqlite` if it holds the same config."""
     cfg.check()
-    policy, task = load_policy(cfg.policy), get_task(cfg.task, cfg.max_steps)
+    policy, task = load_policy(cfg.policy), get_task(cfg.task, cfg.max_steps, cfg.success)
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
     optimizer = cfg.optimizer(policy.noise_shape, search_seeds)
-    fingerprint = policy_fingerprint(policy, cfg.policy)
+    names = Names(policy_label(cfg.policy), task.name, policy_fingerprint(policy, policy_label(cfg.policy)))
     task.check()
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
-    with _open_store(out, cfg, fingerprint) as store, \
+    with _open_store(out, cfg, names) as store, \
             Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers) as engine:
         evaluator = Evaluator(engine, store)
         with progress_bar(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
         with progress_bar(evaluator, cfg.budget, f"search ({cfg.method})") as bar:
-            result = run_search(optimizer, query_evaluator(evaluator, fingerprint), budget=cfg.budget,
+            result = run_search(optimizer, query_evaluator(evaluator, names.fingerprint), budget=cfg.budget,
                                 stop_after_perfect=cfg.stop_after_perfect,
                                 max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
         top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds)) or result.top(cfg.top_k)
-        tickets = [_ticket(cfg, fingerprint, result, c, search_seeds) for c in top]
+        tickets = [_ticket(cfg, names, result, c, search_seeds) for c in top]
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
     _adjust_for_multiplicity(judged, [t.id for t in tickets])
     span = [heldout[0], heldout[-1]]
-    summary = _summary(cfg, judged, _save_ranked(tickets, judged, out, span), result, span)
+    summary = _summary(cfg, names, judged, _save_ranked(tickets, judged, out, span), result, span)
     write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    title = f"{cfg.policy} on {cfg.task}"
+    title = f"{names.policy} on {names.task}"
     arms_png(arm_rows(summary["base"], summary["zero"], summary["tickets"]), out / "verdict.png", title)
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
                out / "search.png", f"{cfg.method} search: {title}")
@@ -108,7 +111,16 @@ def arm_rows(base: dict, zero: dict, tickets: list[dict]) -> dict[str, dict]:
     return {"base": base, "zero ticket": zero} | {f"ticket {t['ticket_id']}": t for t in tickets}
 
 
-def _open_store(out: Path, cfg: SearchConfig, fingerprint: str) -> RunStore:
+@dataclass(frozen=True)
+class Names:
+    """How the run's files name its policy and task, and what its tickets are found for."""
+
+    policy: str
+    task: str
+    fingerprint: str
+
+
+def _open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
     """The run store in `out`, holding this config (the policy's fingerprint included: a policy
     retrained in place is another run)."""
     if out.exists() and not out.is_dir():
@@ -118,7 +130,10 @@ def _open_store(out: Path, cfg: SearchConfig, fingerprint: str) -> RunStore:
     except OSError as exc:
         raise UserError(f"cannot create --out {out}: {exc.strerror}") from None
     store = RunStore(out / "run.sqlite")
-    if not store.claim_config(asdict(cfg) | {"workers": None, "policy_fingerprint": fingerprint}):
+    config = {f.name: getattr(cfg, f.name) for f in fields(cfg)} | {
+        "policy": names.policy, "task": names.task, "workers": None, "policy_fingerprint": names.fingerprint,
+        "success": cfg.success if cfg.success is None or isinstance(cfg.success, str) else import_name(cfg.success)}
+    if not store.claim_config(config):
         store.close()
         raise UserError(f"{out} holds a different run; choose another --out or the same options")
     return store
@@ -141,11 +156,11 @@ def query_evaluator(evaluator: Evaluator, fingerprint: str):
     return evaluate
 
 
-def _ticket(cfg: SearchConfig, fingerprint: str, result: SearchResult, candidate,
+def _ticket(cfg: SearchConfig, names: Names, result: SearchResult, candidate,
             search_seeds: list[int]) -> Ticket:
     return Ticket(candidate.ticket, {
-        "policy": cfg.policy, "policy_fingerprint": fingerprint,
-        "noise_shape": list(candidate.ticket.shape), "task": cfg.task, "method": cfg.method,
+        "policy": names.policy, "policy_fingerprint": names.fingerprint,
+        "noise_shape": list(candidate.ticket.shape), "task": names.task, "method": cfg.method,
         "budget": cfg.budget, "episodes_used": result.episodes_used, "seed": cfg.seed,
         "objective": cfg.objective, "search_seeds": [search_seeds[0], search_seeds[-1]],
         "search_score": candidate.mean_return, "search_episodes": candidate.n,
@@ -173,10 +188,10 @@ def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path,
     return entries
 
 
-def _summary(cfg: SearchConfig, judged: dict[str, Judged], entries: list[dict],
+def _summary(cfg: SearchConfig, names: Names, judged: dict[str, Judged], entries: list[dict],
              result: SearchResult, span: list[int]) -> dict:
     return {
-        "task": cfg.task, "policy": cfg.policy, "method": cfg.method, "seed": cfg.seed,
+        "task": names.task, "policy": names.policy, "method": cfg.method, "seed": cfg.seed,
         "search_episodes": result.episodes_used, "stopped_because": result.stopped_because,
         "heldout_seeds": span,
         "base": judged["base"].to_dict(), "zero": judged["zero"].to_dict(),
@@ -185,28 +200,29 @@ def _summary(cfg: SearchConfig, judged: dict[str, Judged], entries: list[dict],
     }
 
 
-def evaluate_tickets(policy_name: str, task_name: str, ticket_paths: list[Path], seeds: list[int],
-                     seed: int = 0, workers: int = 2, allow_transfer: bool = False,
-                     max_steps: int | None = None) -> dict[str, dict]:
+def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ticket_paths: list[Path],
+                     seeds: list[int], seed: int = 0, workers: int = 2, allow_transfer: bool = False,
+                     max_steps: int | None = None, success: str | Callable | None = None
+                     ) -> dict[str, dict]:
     """Base, zero ticket and each ticket on held-out `seeds`: one-sided paired p-values vs base
     and vs zero, Holm-adjusted over the tickets. A ticket found for another policy or task is
     refused unless `allow_transfer`."""
     require_heldout(seeds)
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
-    policy, task = load_policy(policy_name), get_task(task_name, max_steps)
+    policy, task = load_policy(policy_ref), get_task(task_ref, max_steps, success)
     loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape) for path in ticket_paths}
-    fingerprint = policy_fingerprint(policy, policy_name)
+    fingerprint = policy_fingerprint(policy, policy_label(policy_ref))
     for path, ticket in loaded.items():
         if not allow_transfer:
-            ticket.check_fits(fingerprint, task_name, str(path))
+            ticket.check_fits(fingerprint, task.name, str(path))
         if (searched := ticket.search_seeds()) is not None:
             require_unseen(seeds, searched, f"search seeds of {path}")
     tickets = list({t.id: t for t in loaded.values()}.values())  # a ticket named twice is judged once
     task.check()
     sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
     sources |= {t.id: Constant(t.noise) for t in tickets}
-    with Engine(policy_name, task, workers=workers) as engine:
+    with Engine(policy_ref, task, workers=workers) as engine:
         evaluator = Evaluator(engine)
         with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
             judged = judge(evaluator, sources, seeds, Gaussian(seed))

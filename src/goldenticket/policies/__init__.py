@@ -8,9 +8,10 @@ from goldenticket.policies.registry import (
     find_ticket,
     fingerprint,
     load_policy,
+    policy_label,
     policy_names,
 )
 
 __all__ = ["BUNDLED_DIR", "MLPPolicy", "NoisePolicy", "PolicyConfig", "TicketedPolicy",
            "bundled_tickets", "find_ticket", "fingerprint", "load_policy",
-           "policy_names"]
+           "policy_label", "policy_names"]

@@ -11,7 +11,7 @@ import hashlib
 from pathlib import Path
 
 from goldenticket.errors import UserError
-from goldenticket.factories import build, is_import_string
+from goldenticket.factories import build, import_name, is_import_string
 from goldenticket.policies.base import NoisePolicy
 from goldenticket.policies.mlp import MLPPolicy
 
@@ -53,10 +53,12 @@ def split_steps(name: str) -> tuple[str, int | None]:
     return base, int(steps)
 
 
-def load_policy(name: str) -> NoisePolicy:
+def load_policy(name: str | NoisePolicy) -> NoisePolicy:
     """A bundled policy by name, a policy directory (config.json + model.safetensors), where an
-    `@N` suffix sets the number of denoising steps, or any NoisePolicy built by an import string
-    `package.module:factory`."""
+    `@N` suffix sets the number of denoising steps, any NoisePolicy built by an import string
+    `package.module:factory`, or a NoisePolicy object itself (checked)."""
+    if not isinstance(name, str):
+        return _checked(name, policy_label(name))
     if is_import_string(name):
         return _checked(build(name, "policy"), name)
     base, steps = split_steps(name)
@@ -84,9 +86,17 @@ def _checked(policy, name: str) -> NoisePolicy:
     return policy
 
 
-def fingerprint(policy: NoisePolicy, name: str) -> str:
+def policy_label(policy: str | NoisePolicy) -> str:
+    """How runs, tickets and tables name a policy: its name string, or an object's `name`
+    attribute, else the import name of its class."""
+    if isinstance(policy, str):
+        return policy
+    return getattr(policy, "name", None) or import_name(policy)
+
+
+def fingerprint(policy: NoisePolicy, label: str) -> str:
     """What a ticket is found for: the policy's own `fingerprint()` (bundled policies: weights hash
-    and step count) or, for a policy that has none, a hash of the name that builds it."""
+    and step count) or, for a policy that has none, a hash of its label."""
     if callable(getattr(policy, "fingerprint", None)):
         return policy.fingerprint()
-    return "name-" + hashlib.sha256(name.encode()).hexdigest()[:16]
+    return "name-" + hashlib.sha256(label.encode()).hexdigest()[:16]

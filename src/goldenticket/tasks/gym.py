@@ -1,24 +1,22 @@
-"""Any Gymnasium environment as a task, named by an import string `package.module:factory`.
+"""Any Gymnasium environment as a task: a factory returning a `gymnasium.Env`, given as a callable
+or as an import string `package.module:factory`.
 
-The factory returns a `gymnasium.Env` whose `reset(seed=s)` fixes the initial state; success
-comes from `info["success"]` or `info["is_success"]`; an episode ends on success, `terminated`,
-`truncated` or the task's `max_steps`.
+`reset(seed=s)` must fix the initial state; success comes from `info["success"]` or
+`info["is_success"]`, or from the user's predicate `success(obs, info) -> bool`; an episode ends
+on success, `terminated`, `truncated` or the task's `max_steps`.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
-import subprocess
-import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from goldenticket.errors import UserError
-from goldenticket.factories import build
+from goldenticket.factories import build, import_name, in_another_process, resolve
 from goldenticket.tasks.base import SEED_SETS, quiet_env_warnings
 
 SUCCESS_KEYS = ("success", "is_success")
@@ -28,8 +26,8 @@ CHECK_SEEDS = (SEED_SETS["search"].start, SEED_SETS["heldout"].start)
 class GymEnv:
     """A `gymnasium.Env` behind the Env contract."""
 
-    def __init__(self, env, task: str):
-        self._env, self._task = env, task
+    def __init__(self, env, task: str, success: Callable | None = None):
+        self._env, self._task, self._success = env, task, success
 
     def reset(self, seed: int):
         obs, _ = self._env.reset(seed=seed)
@@ -37,30 +35,44 @@ class GymEnv:
 
     def step(self, action: np.ndarray):
         obs, reward, terminated, truncated, info = self._env.step(action)
+        return obs, float(reward), self._succeeded(obs, info), bool(terminated or truncated)
+
+    def _succeeded(self, obs, info: dict) -> bool:
+        if self._success is not None:
+            return bool(self._success(obs, info))
         key = next((k for k in SUCCESS_KEYS if k in info), None)
         if key is None:
             raise UserError(f"task {self._task!r}: step() returned no info['success'] or "
-                            "info['is_success']; the search needs one")
-        return obs, float(reward), bool(info[key]), bool(terminated or truncated)
+                            "info['is_success']; return one, or pass a success predicate")
+        return bool(info[key])
 
 
 @dataclass(frozen=True)
 class GymTask:
-    """A Gymnasium env built by `name`, an import string; episodes are capped at `max_steps`."""
+    """A Gymnasium env built by `factory` (a callable, or an import string), episodes capped at
+    `max_steps`; `success` (a predicate `(obs, info) -> bool`, or its import string) replaces
+    the info keys. Worker processes receive the task pickled, so callables must be importable."""
 
-    name: str
+    factory: Callable | str
     max_steps: int = 1000
+    success: Callable | str | None = None
+
+    @property
+    def name(self) -> str:
+        """The import string of the factory: what tickets record as their task."""
+        return self.factory if isinstance(self.factory, str) else import_name(self.factory)
 
     def make_env(self) -> GymEnv:
         quiet_env_warnings()
-        env = build(self.name, "task")
+        env = build(self.factory, "task")
         if not all(callable(getattr(env, m, None)) for m in ("reset", "step")):
             raise UserError(f"task {self.name!r}: the factory must return a gymnasium.Env, "
                             f"got {type(env).__name__}")
         if type(getattr(env, "unwrapped", env)).__module__.startswith("metaworld"):
             raise UserError(f"task {self.name!r}: Meta-World's own envs ignore reset(seed=) "
                             "(Metaworld issue #555); use the built-in task metaworld/<env-name>")
-        return GymEnv(env, self.name)
+        success = resolve(self.success, "success predicate") if isinstance(self.success, str) else self.success
+        return GymEnv(env, self.name, success)
 
     def check(self) -> None:
         """Like Gymnasium's check_reset_seed_determinism: the same seed must give the same initial
@@ -75,15 +87,11 @@ class GymTask:
                             "reset from its seed")
 
     def _digest_in_another_process(self) -> str:
-        code = ("import sys; from goldenticket.tasks.gym import GymTask, observation_digest, CHECK_SEEDS; "
-                "print(observation_digest(GymTask(sys.argv[1]).make_env(), CHECK_SEEDS))")
-        path = os.pathsep.join(p for p in sys.path if p)  # as multiprocessing gives its workers
-        proc = subprocess.run([sys.executable, "-c", code, self.name], capture_output=True, text=True,
-                              env=os.environ | {"PYTHONPATH": path}, timeout=600)
-        if proc.returncode:
-            raise UserError(f"task {self.name!r}: cannot be built in another process "
-                            f"({(proc.stderr.strip().splitlines() or ['no output'])[-1]})")
-        return proc.stdout.strip()
+        return in_another_process(_initial_digest, self, what=f"task {self.name!r}")
+
+
+def _initial_digest(task: GymTask) -> str:
+    return observation_digest(task.make_env(), CHECK_SEEDS)
 
 
 def observation_digest(env: GymEnv, seeds: Sequence[int]) -> str:
