@@ -13,8 +13,8 @@ import numpy as np
 import torch
 
 from goldenticket.errors import UserError
-from goldenticket.noise import NoiseSource
 from goldenticket.factories import picklable
+from goldenticket.noise import NoiseSource
 from goldenticket.policies import NoisePolicy, load_policy, policy_label
 from goldenticket.tasks import OBJECTIVES, Task
 

@@ -17,8 +17,8 @@ from goldenticket.factories import import_name
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import arms_png, search_png
-from goldenticket.policies import fingerprint as policy_fingerprint
 from goldenticket.policies import NoisePolicy, load_policy, policy_label
+from goldenticket.policies import fingerprint as policy_fingerprint
 from goldenticket.rollout import Engine
 from goldenticket.stats import holm_adjust
 from goldenticket.store import RunStore
@@ -130,9 +130,10 @@ def _open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
     except OSError as exc:
         raise UserError(f"cannot create --out {out}: {exc.strerror}") from None
     store = RunStore(out / "run.sqlite")
+    success = cfg.success if cfg.success is None or isinstance(cfg.success, str) else import_name(cfg.success)
     config = {f.name: getattr(cfg, f.name) for f in fields(cfg)} | {
-        "policy": names.policy, "task": names.task, "workers": None, "policy_fingerprint": names.fingerprint,
-        "success": cfg.success if cfg.success is None or isinstance(cfg.success, str) else import_name(cfg.success)}
+        "policy": names.policy, "task": names.task, "success": success, "workers": None,
+        "policy_fingerprint": names.fingerprint}
     if not store.claim_config(config):
         store.close()
         raise UserError(f"{out} holds a different run; choose another --out or the same options")

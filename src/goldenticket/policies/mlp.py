@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass
@@ -16,10 +15,9 @@ from torch import nn
 
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
+from goldenticket.policies.numerics import float64, in_blocks, on_grid, state_hash
 
 KINDS = ("flow", "ddim")
-BLOCK = 16  # rows per network call; see MLPPolicy.act
-GRID = 2.0**-20  # actions are rounded to multiples of this; see MLPPolicy.act
 
 
 @dataclass
@@ -74,15 +72,6 @@ class Denoiser(nn.Module):
         return (x.clamp(-1, 1) + 1) / 2 * (self.act_high - self.act_low) + self.act_low
 
 
-def state_hash(state: dict[str, torch.Tensor]) -> str:
-    """16 hex chars of sha256 over a state dict's names and values."""
-    digest = hashlib.sha256()
-    for key, value in sorted(state.items()):
-        digest.update(key.encode())
-        digest.update(value.detach().contiguous().numpy().tobytes())
-    return digest.hexdigest()[:16]
-
-
 def ddim_alpha_bar(t: torch.Tensor) -> torch.Tensor:
     """Cosine schedule: cumulative signal fraction at continuous time t in [0, 1]."""
     return torch.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2
@@ -107,32 +96,12 @@ class MLPPolicy:
     n_exec = property(lambda self: self.cfg.n_exec)
     noise_shape = property(lambda self: (self.cfg.horizon, self.cfg.action_dim))
 
-    @torch.no_grad()
     def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        """Same actions on every CPU. Math kernels (MKL, ATen SIMD) differ between CPUs in the
-        last bits, and rollouts are chaotic, so inference runs in float64, where kernels differ
-        by < 1e-13, and rounds the actions once to multiples of GRID (2^-20, far below any
-        actuator's resolution): a kernel difference changes an action only if it straddles a
-        grid point, measured at ~3e-10 per action value (README, "Same numbers on every
-        machine"). The network runs on fixed blocks of BLOCK rows, the last zero-padded, so
-        each row's actions are bitwise independent of its batch."""
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)  # these matmuls are small: threads only cost (~100x on a busy CPU)
-        try:
-            return self._act(obs, noise)
-        finally:
-            torch.set_num_threads(threads)
-
-    def _act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
-        n, pad = len(obs), -len(obs) % BLOCK
-        obs_n = self._net.normalise_obs(torch.as_tensor(obs, dtype=torch.float64))
-        obs_n = torch.nn.functional.pad(obs_n, (0, 0, 0, pad))
-        x = torch.tensor(noise, dtype=torch.float64)  # a copy: tickets may be read-only views
-        x = torch.nn.functional.pad(x, (0, 0, 0, 0, 0, pad))
+        """Same actions on every CPU: float64 inference in fixed blocks, rounded to a grid
+        (`policies/numerics.py`)."""
         denoise = self._flow if self.cfg.kind == "flow" else self._ddim
-        x = torch.cat([denoise(o, xb) for o, xb in zip(obs_n.split(BLOCK), x.split(BLOCK), strict=True)])
-        actions = self._net.denormalise_actions(x[:n])[:, : self.cfg.n_exec]
-        return (torch.round(actions / GRID) * GRID).to(torch.float32).numpy()
+        x = in_blocks(denoise, self._net.normalise_obs(float64(obs)), noise)
+        return on_grid(self._net.denormalise_actions(x)[:, : self.cfg.n_exec])
 
     def _flow(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         ts = torch.linspace(1.0, 0.0, self.cfg.steps + 1, dtype=torch.float64)

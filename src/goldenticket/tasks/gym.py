@@ -71,7 +71,9 @@ class GymTask:
         if type(getattr(env, "unwrapped", env)).__module__.startswith("metaworld"):
             raise UserError(f"task {self.name!r}: Meta-World's own envs ignore reset(seed=) "
                             "(Metaworld issue #555); use the built-in task metaworld/<env-name>")
-        success = resolve(self.success, "success predicate") if isinstance(self.success, str) else self.success
+        success = self.success
+        if isinstance(success, str):
+            success = resolve(success, "success predicate")
         return GymEnv(env, self.name, success)
 
     def check(self) -> None:
