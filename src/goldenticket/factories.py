@@ -55,10 +55,13 @@ def build(factory, what: str):
 
 
 def import_name(obj) -> str:
-    """`module:qualname` of a function or class (an instance: of its class), the name a worker
-    process would import it by."""
+    """`module:qualname` of a function or class (an instance: of its class), the name the CLI
+    would import it by; a script's `__main__` is named by the script's file (`mine.py`: `mine`)."""
     target = obj if hasattr(obj, "__qualname__") else type(obj)
-    return f"{target.__module__}:{target.__qualname__}"
+    module = target.__module__
+    if module in ("__main__", "__mp_main__") and getattr(sys.modules[module], "__file__", None):
+        module = Path(sys.modules[module].__file__).stem
+    return f"{module}:{target.__qualname__}"
 
 
 def picklable(obj, what: str) -> None:
