@@ -79,15 +79,11 @@ def checked_actions(policy: NoisePolicy, actions: np.ndarray, batch: int) -> np.
     actions = np.asarray(actions)
     expected = (batch, policy.n_exec, policy.noise_shape[1])
     if actions.shape != expected:
-        raise UserError(f"policy {_name(policy)!r} returned actions of shape {actions.shape}; the "
+        raise UserError(f"policy {policy_label(policy)!r} returned actions of shape {actions.shape}; the "
                         f"NoisePolicy contract asks for [B, n_exec, A] = {expected}")
     if not np.isfinite(actions).all():
-        raise UserError(f"policy {_name(policy)!r} returned NaN or infinite actions")
+        raise UserError(f"policy {policy_label(policy)!r} returned NaN or infinite actions")
     return actions
-
-
-def _name(policy: NoisePolicy) -> str:
-    return getattr(policy, "name", type(policy).__name__)
 
 
 # --- process pool: each worker loads the policy and task once, then runs shards ---------------
