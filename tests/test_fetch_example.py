@@ -15,14 +15,15 @@ sys.path.insert(0, str(ROOT / "examples"))
 
 def test_fetch_push_is_searched_from_the_cli(tmp_path):
     out = tmp_path / "run"
-    argv = ["search", "--policy", "examples.fetch_push:make_policy", "--task", "examples.fetch_push:make_env",
-            "--method", "cem-racing", "--budget", "40", "--search-seeds", "5", "--heldout", "16", "--top-k", "2",
-            "--out", str(out)]
+    argv = ["search", "--policy", "examples.fetch_push:make_policy",
+            "--task", "examples.fetch_push:make_env", "--method", "cem-racing", "--budget", "40",
+            "--search-seeds", "5", "--heldout", "16", "--top-k", "2", "--out", str(out)]
     proc = subprocess.run([sys.executable, "-m", "goldenticket.cli", *argv], cwd=ROOT, capture_output=True,
                           text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["task"] == "examples.fetch_push:make_env" and summary["policy"] == "examples.fetch_push:make_policy"
+    assert summary["task"] == "examples.fetch_push:make_env"
+    assert summary["policy"] == "examples.fetch_push:make_policy"
     assert summary["base"]["n"] == 16 and len(summary["tickets"]) == 2
     assert summary["base"]["success_rate"] > 0  # the trained policy pushes some blocks home
 

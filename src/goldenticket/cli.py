@@ -79,6 +79,14 @@ def _run_args(p: argparse.ArgumentParser) -> None:
                         "tickets/, verdict.png, search.png")
     p.add_argument("--seed", type=_seed, default=0, help="seed of every random draw")
     p.add_argument("--workers", type=int, default=2, help=WORKERS_HELP)
+    _backend_args(p)
+
+
+def _backend_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--backend", choices=["local", "ray"], default="local",
+                   help="where episodes run: local processes, or Ray actors (results do not depend on it)")
+    p.add_argument("--address", default=None,
+                   help="Ray cluster address, e.g. ray://head:10001 (default: start a local Ray instance)")
 
 
 def _search_parser(sub) -> None:
@@ -118,6 +126,7 @@ def _evaluate_parser(sub) -> None:
     ev.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     ev.add_argument("--success", default=None, help=SUCCESS_HELP)
     ev.add_argument("--workers", type=int, default=2, help=WORKERS_HELP)
+    _backend_args(ev)
     ev.add_argument("--allow-transfer", action="store_true",
                     help="run tickets found for another policy or task (transfer studies)")
     ev.add_argument("--plot", type=Path, default=Path("evaluate.png"),
@@ -216,7 +225,8 @@ def _fail(message: str) -> int:
 def _demo(args) -> int:
     from goldenticket.workflow import SearchConfig
 
-    return _run_search(SearchConfig(DEMO_POLICY, DEMO_TASK, seed=args.seed, workers=args.workers),
+    return _run_search(SearchConfig(DEMO_POLICY, DEMO_TASK, seed=args.seed, workers=args.workers,
+                                    backend=args.backend, address=args.address),
                        args.out)
 
 
@@ -226,7 +236,7 @@ def _search(args) -> int:
     cfg = SearchConfig(args.policy, args.task, args.method, args.budget, args.seed,
                        args.search_seeds, args.heldout, args.top_k, args.objective,
                        args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
-                       args.success)
+                       args.success, args.backend, args.address)
     return _run_search(cfg, args.out)
 
 
@@ -254,7 +264,7 @@ def _evaluate(args) -> int:
     if args.plot.is_dir() or not folder.is_dir() or not os.access(folder, os.W_OK):
         raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
     rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
-                            args.allow_transfer, args.max_steps, args.success)
+                            args.allow_transfer, args.max_steps, args.success, args.backend, args.address)
     tickets = [r | {"ticket_id": label} for label, r in rows.items() if label not in ("base", "zero")]
     arms = arm_rows(rows["base"], rows["zero"], tickets)
     best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],

@@ -101,25 +101,44 @@ def _run_shard(episodes: list[Episode]) -> list[EpisodeResult]:
     return rollout(w["policy"], w["task"], episodes, w["objective"], w["envs"])
 
 
+def _local_pool(workers: int, initializer, initargs: tuple, address: None):
+    return mp.get_context("spawn").Pool(workers, initializer, initargs)
+
+
+def _ray_pool(workers: int, initializer, initargs: tuple, address: str | None):
+    from goldenticket.ray_pool import RayPool
+
+    return RayPool(workers, initializer, initargs, address)
+
+
+BACKENDS = {"local": _local_pool, "ray": _ray_pool}
+
+
 class Engine:
-    """Evaluates episodes in-process (workers=1) or across a pool of worker processes.
+    """Evaluates episodes in-process (local backend, workers=1), across local worker processes,
+    or on Ray actors (`backend="ray"`, a local Ray instance or the cluster at `address`).
 
     Shards are fixed by episode order, never by timing, so every backend gives the same
     results for the same episodes.
     """
 
     def __init__(self, policy: str | NoisePolicy, task: Task, *, objective: str = "success",
-                 workers: int = 1, shard_size: int = 32):
+                 workers: int = 1, shard_size: int = 32, backend: str = "local", address: str | None = None):
         most = 4 * (os.cpu_count() or 1)
-        if not 1 <= workers <= most:
+        if backend not in BACKENDS:
+            raise UserError(f"unknown --backend {backend!r}; choose from {list(BACKENDS)}")
+        if address is not None and backend != "ray":
+            raise UserError("--address needs --backend ray")
+        if workers < 1 or (backend == "local" and workers > most):
             raise UserError(f"--workers must be between 1 and {most} (4 per CPU here), got {workers}")
-        self.policy = load_policy(policy) if workers == 1 else None
+        local = backend == "local" and workers == 1
+        self.policy = load_policy(policy) if local else None
         self.task, self.objective, self.shard_size = task, objective, shard_size
         self._envs: list = []
         self._pool = None
-        if workers > 1:  # each worker rebuilds a named policy, or unpickles a policy object
+        if not local:  # each worker rebuilds a named policy, or unpickles a policy object
             picklable((policy, task), f"policy {policy_label(policy)!r} or task {task.name!r}")
-            self._pool = mp.get_context("spawn").Pool(workers, _init_worker, (policy, task, objective))
+            self._pool = BACKENDS[backend](workers, _init_worker, (policy, task, objective), address)
 
     def evaluate(self, episodes: Sequence[Episode],
                  on_shard: Callable[[int, list[EpisodeResult]], None] | None = None

@@ -46,6 +46,8 @@ class SearchConfig:
     workers: int = 2
     max_steps: int | None = None  # None: the task's own limit
     success: str | Callable | None = None  # Gymnasium tasks: predicate (obs, info) -> bool
+    backend: str = "local"  # or "ray": episodes on Ray actors
+    address: str | None = None  # the Ray cluster (None: a local Ray instance)
 
     def check(self) -> None:
         """Every option, before any episode runs."""
@@ -81,7 +83,8 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     task.check()
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     with _open_store(out, cfg, names) as store, \
-            Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers) as engine:
+            Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
+                   address=cfg.address) as engine:
         evaluator = Evaluator(engine, store)
         with progress_bar(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
@@ -132,8 +135,9 @@ def _open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
     store = RunStore(out / "run.sqlite")
     success = cfg.success if cfg.success is None or isinstance(cfg.success, str) else import_name(cfg.success)
     config = {f.name: getattr(cfg, f.name) for f in fields(cfg)} | {
-        "policy": names.policy, "task": names.task, "success": success, "workers": None,
-        "policy_fingerprint": names.fingerprint}
+        "policy": names.policy, "task": names.task, "success": success,
+        "policy_fingerprint": names.fingerprint,
+        "workers": None, "backend": None, "address": None}  # where episodes run does not change them
     if not store.claim_config(config):
         store.close()
         raise UserError(f"{out} holds a different run; choose another --out or the same options")
@@ -203,8 +207,8 @@ def _summary(cfg: SearchConfig, names: Names, judged: dict[str, Judged], entries
 
 def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ticket_paths: list[Path],
                      seeds: list[int], seed: int = 0, workers: int = 2, allow_transfer: bool = False,
-                     max_steps: int | None = None, success: str | Callable | None = None
-                     ) -> dict[str, dict]:
+                     max_steps: int | None = None, success: str | Callable | None = None,
+                     backend: str = "local", address: str | None = None) -> dict[str, dict]:
     """Base, zero ticket and each ticket on held-out `seeds`: one-sided paired p-values vs base
     and vs zero, Holm-adjusted over the tickets. A ticket found for another policy or task is
     refused unless `allow_transfer`."""
@@ -223,7 +227,7 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
     task.check()
     sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
     sources |= {t.id: Constant(t.noise) for t in tickets}
-    with Engine(policy_ref, task, workers=workers) as engine:
+    with Engine(policy_ref, task, workers=workers, backend=backend, address=address) as engine:
         evaluator = Evaluator(engine)
         with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
             judged = judge(evaluator, sources, seeds, Gaussian(seed))
