@@ -2,14 +2,18 @@
 
 Raw: one stock Meta-World env stepped with random actions, no policy, no bookkeeping.
 Engine: the bundled policy's episodes through `Engine` (policy calls, noise, resets included),
-in-process and with a worker pool. Prints each rate and its ratio to the raw rate.
+with 1 ... `--workers` workers, on local processes and, if Ray is installed, on Ray actors of a
+local Ray instance. Prints each rate and its ratio to the raw rate, or with `--json` one JSON
+object {"raw": steps/s, "engine": {workers: steps/s}, "ray": {workers: steps/s}}.
 
-    python benchmarks/engine_throughput.py [--episodes 200] [--workers 2]
+    python benchmarks/engine_throughput.py [--episodes 200] [--workers 2] [--json]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import json
 import time
 import warnings
 
@@ -39,11 +43,11 @@ def raw_steps_per_second(steps: int = 5000) -> float:
     return steps / (time.perf_counter() - start)
 
 
-def engine_steps_per_second(episodes: int, workers: int) -> float:
+def engine_steps_per_second(episodes: int, workers: int, backend: str = "local") -> float:
     task = get_task(TASK)
     batch = [Episode(Gaussian(0), s) for s in seeds_in("search", episodes)]
-    with Engine(POLICY, task, workers=workers) as engine:
-        engine.evaluate(batch[: 2 * workers])  # warm-up: build envs, load the policy
+    with Engine(POLICY, task, workers=workers, backend=backend) as engine:
+        engine.evaluate(batch[: engine.shard_size * workers])  # warm-up: build envs, load the policy
         start = time.perf_counter()
         results = engine.evaluate(batch)
         elapsed = time.perf_counter() - start
@@ -54,13 +58,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
-    raw = raw_steps_per_second()
-    print(f"raw stock env, 1 process:        {raw:8.0f} steps/s  (ratio 1.00)")
-    for workers in sorted({1, args.workers}):
-        rate = engine_steps_per_second(args.episodes, workers)
-        print(f"engine, {workers} worker(s), {args.episodes} episodes: {rate:8.0f} steps/s  "
-              f"(ratio {rate / raw:.2f})")
+    backends = ["local"] + (["ray"] if importlib.util.find_spec("ray") else [])
+    rates = {"raw": raw_steps_per_second()}
+    for backend in backends:
+        rates["engine" if backend == "local" else backend] = {
+            w: engine_steps_per_second(args.episodes, w, backend) for w in range(1, args.workers + 1)}
+    if args.json:
+        print(json.dumps(rates))
+        return
+    print(f"raw stock env, 1 process:             {rates['raw']:8.0f} steps/s  (ratio 1.00)")
+    for backend in backends:
+        for workers, rate in rates["engine" if backend == "local" else backend].items():
+            print(f"{backend:5s} engine, {workers} worker(s), {args.episodes} episodes: {rate:8.0f} steps/s  "
+                  f"(ratio {rate / rates['raw']:.2f}, per worker {rate / (workers * rates['raw']):.2f})")
 
 
 if __name__ == "__main__":
