@@ -3,8 +3,9 @@
 Raw: one stock Meta-World env stepped with random actions, no policy, no bookkeeping.
 Engine: the bundled policy's episodes through `Engine` (policy calls, noise, resets included),
 with 1 ... `--workers` workers, on local processes and, if Ray is installed, on Ray actors of a
-local Ray instance. Prints each rate and its ratio to the raw rate, or with `--json` one JSON
-object {"raw": steps/s, "engine": {workers: steps/s}, "ray": {workers: steps/s}}.
+local Ray instance; and the peak resident memory of a local worker process (a shard of 32
+episodes, so 32 envs). Prints each rate and its ratio to the raw rate, or with `--json` one JSON
+object {"raw": steps/s, "engine": {workers: steps/s}, "ray": {workers: steps/s}, "peak_rss_mb"}.
 
     python benchmarks/engine_throughput.py [--episodes 200] [--workers 2] [--json]
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import resource
 import time
 import warnings
 
@@ -65,6 +67,8 @@ def main() -> None:
     for backend in backends:
         rates["engine" if backend == "local" else backend] = {
             w: engine_steps_per_second(args.episodes, w, backend) for w in range(1, args.workers + 1)}
+        if backend == "local":  # before Ray starts processes of its own
+            rates["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     if args.json:
         print(json.dumps(rates))
         return
@@ -73,6 +77,7 @@ def main() -> None:
         for workers, rate in rates["engine" if backend == "local" else backend].items():
             print(f"{backend:5s} engine, {workers} worker(s), {args.episodes} episodes: {rate:8.0f} steps/s  "
                   f"(ratio {rate / rates['raw']:.2f}, per worker {rate / (workers * rates['raw']):.2f})")
+    print(f"peak memory of a local worker process: {rates['peak_rss_mb']:.0f} MB")
 
 
 if __name__ == "__main__":

