@@ -70,3 +70,14 @@ def test_address_without_ray_is_one_line():
                           timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip() == "goldenticket: error: --address needs --backend ray"
+
+
+def test_an_error_on_an_actor_is_one_line(tmp_path):
+    argv = ["evaluate", "--policy", "byo_example:make_nan_policy", "--task", "byo_example:make_env",
+            "--seeds", "1000000:1000004", "--max-steps", "30", "--backend", "ray",
+            "--plot", str(tmp_path / "e.png")]
+    proc = subprocess.run([sys.executable, "-m", "goldenticket.cli", *argv], cwd=HERE, capture_output=True,
+                          text=True, timeout=300)
+    errors = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert errors == ["goldenticket: error: policy 'biased-controller' returned NaN or infinite actions"]

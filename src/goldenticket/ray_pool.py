@@ -61,11 +61,14 @@ class RayPool:
             try:
                 finished[index] = ray.get(ref)
                 idle.append(actor)
+            except ray.exceptions.RayTaskError as exc:  # the shard's own error, as if run here
+                raise exc.cause from None
             except ray.exceptions.RayActorError as exc:
                 tries[index] = tries.get(index, 0) + 1
                 if tries[index] > RETRIES:
+                    first_line = (str(exc).strip().splitlines() or ["no message"])[0]
                     raise UserError(f"Ray actors died {RETRIES + 1} times running shard {index}: "
-                                    f"{exc}") from None
+                                    f"{first_line}") from None
                 self.actors[self.actors.index(actor)] = replacement = self._new_actor()
                 idle.append(replacement)
                 todo.appendleft((index, shard))
