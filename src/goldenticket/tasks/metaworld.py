@@ -61,7 +61,7 @@ def touching_object(env, object_geom_id: int) -> bool:
     for pad in ("leftpad_geom", "rightpad_geom"):
         pad_id = env.data.geom(pad).id
         touching = with_object & ((contacts.geom1 == pad_id) | (contacts.geom2 == pad_id))
-        if not 0 < sum(env.data.efc_force[a] for a in contacts.efc_address[touching]):
+        if not sum(env.data.efc_force[a] for a in contacts.efc_address[touching]) > 0:
             return False
     return True
 
