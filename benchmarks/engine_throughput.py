@@ -6,6 +6,8 @@ with 1 ... `--workers` workers, on local processes and, if Ray is installed, on 
 local Ray instance; and the peak resident memory of a local worker process (a shard of 32
 episodes, so 32 envs). Prints each rate and its ratio to the raw rate, or with `--json` one JSON
 object {"raw": steps/s, "engine": {workers: steps/s}, "ray": {workers: steps/s}, "peak_rss_mb"}.
+Writes benchmarks/results/engine_throughput.{json,png} (the PNG: steps/s against workers, with
+the ideal W x raw line).
 
     python benchmarks/engine_throughput.py [--episodes 200] [--workers 2] [--json]
 """
@@ -18,6 +20,7 @@ import json
 import resource
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -69,6 +72,9 @@ def main() -> None:
             w: engine_steps_per_second(args.episodes, w, backend) for w in range(1, args.workers + 1)}
         if backend == "local":  # before Ray starts processes of its own
             rates["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    results = Path(__file__).parent / "results"
+    (results / "engine_throughput.json").write_text(json.dumps(rates, indent=2) + "\n")
+    plot(rates, results / "engine_throughput.png")
     if args.json:
         print(json.dumps(rates))
         return
@@ -78,6 +84,25 @@ def main() -> None:
             print(f"{backend:5s} engine, {workers} worker(s), {args.episodes} episodes: {rate:8.0f} steps/s  "
                   f"(ratio {rate / rates['raw']:.2f}, per worker {rate / (workers * rates['raw']):.2f})")
     print(f"peak memory of a local worker process: {rates['peak_rss_mb']:.0f} MB")
+
+
+def plot(rates: dict, path: Path) -> None:
+    """Env steps/s against workers for each backend, beside the ideal W x raw."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.5, 3.8))
+    ax = fig.subplots()
+    workers = sorted(rates["engine"])
+    ax.plot(workers, [w * rates["raw"] for w in workers], "k--", linewidth=1, label="W x raw stock env")
+    for name in ("engine", "ray"):
+        if name in rates:
+            ax.plot(workers, [rates[name][w] for w in workers], "o-", label=f"{name} (local)" if name ==
+                    "engine" else "Ray actors")
+    ax.set(xlabel="workers", ylabel="env steps/s", xticks=workers,
+           title="Engine throughput, Meta-World pick-place")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":
