@@ -84,7 +84,7 @@ class Env(Protocol):
 
 
 class Task(Protocol):
-    """Builds envs; `name` rebuilds the task in a worker process (`tasks.get_task`)."""
+    """Builds envs; worker processes receive the task pickled; `name` is what tickets record."""
 
     name: str
     max_steps: int
