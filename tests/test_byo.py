@@ -107,7 +107,8 @@ def test_users_mistakes_are_one_line_and_exit_2(tmp_path):
 
 def test_readme_example_runs_as_written(tmp_path):
     """README's mine.py and its Python API script, run as a user would: objects go to spawned
-    workers, and the run names the task by the script's module, as the CLI does."""
+    workers, and the run names the task by the script's module, as the CLI does. Without its
+    `if __name__ == "__main__":` guard the script stops at once, saying so."""
     section = (HERE.parent / "README.md").read_text().split("## Use your own policy and environment")[1]
     mine, script = re.findall(r"```python\n(.*?)```", section, re.S)[:2]
     (tmp_path / "mine.py").write_text(mine)
@@ -118,3 +119,9 @@ def test_readme_example_runs_as_written(tmp_path):
     assert proc.stdout.startswith("golden ")
     summary = json.loads((tmp_path / "runs" / "mine-py" / "summary.json").read_text())
     assert summary["task"] == "mine:make_env" and summary["base"]["n"] == 100
+
+    unguarded = "".join(line.strip() + "\n" for line in script.splitlines() if "__main__" not in line)
+    (tmp_path / "unguarded.py").write_text(unguarded.replace("runs/mine-py", "runs/unguarded"))
+    proc = subprocess.run([sys.executable, "unguarded.py"], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 1 and "if __name__ == '__main__':" in proc.stderr.splitlines()[-1]

@@ -81,5 +81,6 @@ def in_another_process(fn, *args, what: str):
         try:
             return pool.submit(fn, *args).result()
         except BrokenProcessPool:
-            raise UserError(f"{what}: another process could not rebuild it (is its module "
-                            "importable there?)") from None
+            raise UserError(f"{what}: another process could not rebuild it; is its module importable "
+                            "there, and does a script that calls goldenticket guard its entry point "
+                            "with `if __name__ == '__main__':`?") from None
