@@ -123,7 +123,10 @@ class Engine:
     """
 
     def __init__(self, policy: str | NoisePolicy, task: Task, *, objective: str = "success",
-                 workers: int = 1, shard_size: int = 32, backend: str = "local", address: str | None = None):
+                 workers: int = 1, shard_size: int = 32, backend: str = "local", address: str | None = None,
+                 loaded: NoisePolicy | None = None):
+        """`policy` as workers rebuild it (a name, or the object pickled); `loaded`: the policy
+        already built from it, used in-process instead of building it again."""
         most = 4 * (os.cpu_count() or 1)
         if backend not in BACKENDS:
             raise UserError(f"unknown --backend {backend!r}; choose from {list(BACKENDS)}")
@@ -132,7 +135,7 @@ class Engine:
         if workers < 1 or (backend == "local" and workers > most):
             raise UserError(f"--workers must be between 1 and {most} (4 per CPU here), got {workers}")
         local = backend == "local" and workers == 1
-        self.policy = load_policy(policy) if local else None
+        self.policy = (loaded or load_policy(policy)) if local else None
         self.task, self.objective, self.shard_size = task, objective, shard_size
         self._envs: list = []
         self._pool = None

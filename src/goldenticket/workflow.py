@@ -79,12 +79,12 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     policy, task = load_policy(cfg.policy), get_task(cfg.task, cfg.max_steps, cfg.success)
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
     optimizer = cfg.optimizer(policy.noise_shape, search_seeds)
-    names = Names(policy_label(cfg.policy), task.name, policy_fingerprint(policy, policy_label(cfg.policy)))
+    names = Names.of(cfg.policy, policy, task.name)
     task.check()
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     with _open_store(out, cfg, names) as store, \
             Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
-                   address=cfg.address) as engine:
+                   address=cfg.address, loaded=policy) as engine:
         evaluator = Evaluator(engine, store)
         with progress_bar(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
@@ -121,6 +121,12 @@ class Names:
     policy: str
     task: str
     fingerprint: str
+
+    @classmethod
+    def of(cls, policy_ref: str | NoisePolicy, policy: NoisePolicy, task_name: str) -> Names:
+        """Names of `policy`, built from `policy_ref`, on the task named `task_name`."""
+        label = policy_label(policy_ref)
+        return cls(label, task_name, policy_fingerprint(policy, label))
 
 
 def _open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
@@ -217,17 +223,17 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
         raise UserError(f"--seed must be >= 0, got {seed}")
     policy, task = load_policy(policy_ref), get_task(task_ref, max_steps, success)
     loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape) for path in ticket_paths}
-    fingerprint = policy_fingerprint(policy, policy_label(policy_ref))
+    names = Names.of(policy_ref, policy, task.name)
     for path, ticket in loaded.items():
         if not allow_transfer:
-            ticket.check_fits(fingerprint, task.name, str(path))
+            ticket.check_fits(names.fingerprint, names.task, str(path))
         if (searched := ticket.search_seeds()) is not None:
             require_unseen(seeds, searched, f"search seeds of {path}")
     tickets = list({t.id: t for t in loaded.values()}.values())  # a ticket named twice is judged once
     task.check()
     sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
     sources |= {t.id: Constant(t.noise) for t in tickets}
-    with Engine(policy_ref, task, workers=workers, backend=backend, address=address) as engine:
+    with Engine(policy_ref, task, workers=workers, backend=backend, address=address, loaded=policy) as engine:
         evaluator = Evaluator(engine)
         with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
             judged = judge(evaluator, sources, seeds, Gaussian(seed))
