@@ -78,11 +78,12 @@ def _run_args(p: argparse.ArgumentParser) -> None:
                    help="output folder: run.sqlite (every episode; rerun to resume), summary.json, "
                         "tickets/, verdict.png, search.png")
     p.add_argument("--seed", type=_seed, default=0, help="seed of every random draw")
+    _engine_args(p)
+
+
+def _engine_args(p: argparse.ArgumentParser) -> None:
+    """Where episodes run; results do not depend on it."""
     p.add_argument("--workers", type=int, default=2, help=WORKERS_HELP)
-    _backend_args(p)
-
-
-def _backend_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="where episodes run: local processes, or Ray actors (results do not depend on it)")
     p.add_argument("--address", default=None,
@@ -125,8 +126,7 @@ def _evaluate_parser(sub) -> None:
     ev.add_argument("--seed", type=_seed, default=0, help="seed of the base policy's Gaussian noise")
     ev.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     ev.add_argument("--success", default=None, help=SUCCESS_HELP)
-    ev.add_argument("--workers", type=int, default=2, help=WORKERS_HELP)
-    _backend_args(ev)
+    _engine_args(ev)
     ev.add_argument("--allow-transfer", action="store_true",
                     help="run tickets found for another policy or task (transfer studies)")
     ev.add_argument("--plot", type=Path, default=Path("evaluate.png"),
