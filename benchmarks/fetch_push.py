@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import goldenticket
+from goldenticket.report import rate_text
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE.parent))  # the repository root: tickets name the task as the CLI does
@@ -56,17 +57,14 @@ def report(r: dict) -> str:
                                 r["search"]["heldout_seeds"]),
                                ("fresh (best ticket)", r["fresh"], r["fresh_seeds"])):
         best = rows[best_id]
-        lines.append(f"| {label}: {seeds[0]}-{seeds[1]} | {_rate(rows['base'])} | {_rate(rows['zero'])} | "
-                     f"{_rate(best)} | {best['p_value']:.2g} | {best['p_vs_zero']:.2g} |")
+        rates = " | ".join(rate_text(r) for r in (rows["base"], rows["zero"], best))
+        lines.append(f"| {label}: {seeds[0]}-{seeds[1]} | {rates} | {best['p_value']:.2g} | "
+                     f"{best['p_vs_zero']:.2g} |")
     wall = r["wall_seconds"]
     return (f"Ticket {best_id} (CEM+racing, {r['search']['search_episodes']} search episodes on "
             f"{r['options']['search_seeds']} search seeds); wall time {wall['search']} s search and "
             f"verdict, {wall['fresh']} s fresh check, {r['options']['workers']} workers.\n\n"
             + "\n".join(lines) + "\n")
-
-
-def _rate(row: dict) -> str:
-    return f"{100 * row['success_rate']:.1f}% [{100 * row['ci_low']:.1f}, {100 * row['ci_high']:.1f}]"
 
 
 if __name__ == "__main__":
