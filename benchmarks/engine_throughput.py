@@ -1,11 +1,13 @@
 """Engine env steps/s against the raw stock-env step rate, measured in the same run.
 
 Raw: one stock Meta-World env stepped with random actions, no policy, no bookkeeping.
+Fast: our Meta-World env (`tasks/metaworld_fast.py`, the same episodes to the bit) in the same loop.
 Engine: the bundled policy's episodes through `Engine` (policy calls, noise, resets included),
 with 1 ... `--workers` workers, on local processes and, if Ray is installed, on Ray actors of a
-local Ray instance; and the peak resident memory of a local worker process (a shard of 32
-episodes, so 32 envs). Prints each rate and its ratio to the raw rate, or with `--json` one JSON
-object {"raw": steps/s, "engine": {workers: steps/s}, "ray": {workers: steps/s}, "peak_rss_mb"}.
+local Ray instance; and the peak resident memory of a local worker process (a shard of 16
+episodes, so 16 envs). Prints each rate and its ratio to the raw rate, or with `--json` one JSON
+object {"raw": steps/s, "fast": steps/s, "engine": {workers: steps/s}, "ray": {workers: steps/s},
+"peak_rss_mb"}.
 Writes benchmarks/results/engine_throughput.{json,png} (the PNG: steps/s against workers, with
 the ideal W x raw line).
 
@@ -27,11 +29,12 @@ import numpy as np
 from goldenticket.noise import Gaussian
 from goldenticket.rollout import Engine, Episode
 from goldenticket.tasks import get_task, seeds_in
+from goldenticket.tasks.metaworld import MetaWorldEnv
 
 POLICY, TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
 
 
-def raw_steps_per_second(steps: int = 5000) -> float:
+def raw_steps_per_second() -> float:
     """A stock env (constructed as Meta-World ships it), random actions, reset on truncation."""
     warnings.filterwarnings("ignore")
     import gymnasium as gym
@@ -39,12 +42,27 @@ def raw_steps_per_second(steps: int = 5000) -> float:
 
     env = gym.make("Meta-World/MT1", env_name=TASK.split("/")[1], seed=0)
     env.reset(seed=0)
+
+    def step(action) -> bool:
+        _, _, terminated, truncated, _ = env.step(action)
+        return terminated or truncated
+
+    return steps_per_second(step, lambda: env.reset())
+
+
+def fast_steps_per_second() -> float:
+    """Our Meta-World env on its fast path (bitwise the stock episodes), in the same loop as raw."""
+    env = MetaWorldEnv(TASK.split("/")[1])
+    env.reset(0)
+    return steps_per_second(lambda action: env.step(action)[2], lambda: env.reset(1))
+
+
+def steps_per_second(step, reset, steps: int = 5000) -> float:
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, 4))
     start = time.perf_counter()
     for action in actions:
-        _, _, terminated, truncated, _ = env.step(action)
-        if terminated or truncated:
-            env.reset()
+        if step(action):
+            reset()
     return steps / (time.perf_counter() - start)
 
 
@@ -66,7 +84,7 @@ def main() -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
     backends = ["local"] + (["ray"] if importlib.util.find_spec("ray") else [])
-    rates = {"raw": raw_steps_per_second()}
+    rates = {"raw": raw_steps_per_second(), "fast": fast_steps_per_second()}
     for backend in backends:
         rates["engine" if backend == "local" else backend] = {
             w: engine_steps_per_second(args.episodes, w, backend) for w in range(1, args.workers + 1)}
@@ -79,6 +97,8 @@ def main() -> None:
         print(json.dumps(rates))
         return
     print(f"raw stock env, 1 process:             {rates['raw']:8.0f} steps/s  (ratio 1.00)")
+    print(f"fast path env, 1 process:             {rates['fast']:8.0f} steps/s  "
+          f"(ratio {rates['fast'] / rates['raw']:.2f})")
     for backend in backends:
         for workers, rate in rates["engine" if backend == "local" else backend].items():
             print(f"{backend:5s} engine, {workers} worker(s), {args.episodes} episodes: {rate:8.0f} steps/s  "

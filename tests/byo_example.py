@@ -60,8 +60,8 @@ class SeededMetaWorld(gym.Env):
         return self.env.reset(seed), {}
 
     def step(self, action):
-        obs, reward, success, done = self.env.step(action)
-        return obs, reward, False, done, {"success": success}
+        obs, success, done = self.env.step(action)
+        return obs, 0.0, False, done, {"success": success}
 
 
 class WrongShape(BiasedController):

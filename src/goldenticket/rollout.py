@@ -55,7 +55,7 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
         chunks = checked_actions(policy, policy.act(stack([obs[i] for i in live]), noise), len(live))
         for i, chunk in zip(live, chunks, strict=True):
             for action in chunk:
-                obs[i], _, success[i], done[i] = envs[i].step(action)
+                obs[i], success[i], done[i] = envs[i].step(action)
                 length[i] += 1
                 if success[i] or done[i] or length[i] >= task.max_steps:
                     break
@@ -123,10 +123,12 @@ class Engine:
     """
 
     def __init__(self, policy: str | NoisePolicy, task: Task, *, objective: str = "success",
-                 workers: int = 1, shard_size: int = 32, backend: str = "local", address: str | None = None,
+                 workers: int = 1, shard_size: int = 16, backend: str = "local", address: str | None = None,
                  loaded: NoisePolicy | None = None):
         """`policy` as workers rebuild it (a name, or the object pickled); `loaded`: the policy
-        already built from it, used in-process instead of building it again."""
+        already built from it, used in-process instead of building it again. A shard's episodes run
+        side by side, one env each: 16 fills one batched policy call and keeps a Meta-World worker
+        under 700 MB (32: 5% faster, 1 GB)."""
         most = 4 * (os.cpu_count() or 1)
         if backend not in BACKENDS:
             raise UserError(f"unknown --backend {backend!r}; choose from {list(BACKENDS)}")

@@ -88,7 +88,7 @@ def _expert_episode(expert, env, task, seed, offset, noise, rng):
         action = np.clip(action + noise * rng.standard_normal(task.action_dim), -1, 1)
         obs_seq.append(obs)
         act_seq.append(action.astype(np.float32))
-        obs, _, success, _ = env.step(action)
+        obs, success, _ = env.step(action)
         if success:
             break
     return np.array(obs_seq), np.array(act_seq), success

@@ -78,8 +78,8 @@ class Env(Protocol):
 
     def reset(self, seed: int) -> Any: ...
 
-    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool]:
-        """Apply one action; returns (observation, reward, success, done)."""
+    def step(self, action: np.ndarray) -> tuple[Any, bool, bool]:
+        """Apply one action; returns (observation, success, done). Rewards are not used."""
         ...
 
 

@@ -34,8 +34,8 @@ class GymEnv:
         return obs
 
     def step(self, action: np.ndarray):
-        obs, reward, terminated, truncated, info = self._env.step(action)
-        return obs, float(reward), self._succeeded(obs, info), bool(terminated or truncated)
+        obs, _, terminated, truncated, info = self._env.step(action)
+        return obs, self._succeeded(obs, info), bool(terminated or truncated)
 
     def _succeeded(self, obs, info: dict) -> bool:
         if self._success is not None:

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import types
 from dataclasses import dataclass
 from functools import cache
 
 import numpy as np
 
+from goldenticket.tasks import metaworld_fast
 from goldenticket.tasks.base import quiet_env_warnings
 
 
@@ -30,9 +30,11 @@ class MetaWorldEnv:
     Meta-World draws initial positions from `np_random` in `_get_state_rand_vec` (with its own
     rejection loops for some tasks); we reseed that generator from the integer seed at every
     reset, and `MujocoEnv.reset` restores the simulator state, so history does not leak in.
+    With `fast` (the default) the per-step Python is `metaworld_fast`'s bitwise-identical code;
+    `fast=False` steps Meta-World's own, for comparison.
     """
 
-    def __init__(self, env_name: str):
+    def __init__(self, env_name: str, fast: bool = True):
         self._env = _env_classes()[env_name]()
         env = self._env
         env._partially_observable = False  # the goal is part of the observation
@@ -40,30 +42,17 @@ class MetaWorldEnv:
         env._set_task_called = True
         env._freeze_rand_vec = False
         env.seeded_rand_vec = True
-        env.touching_object = types.MethodType(touching_object, env)
+        if fast:
+            metaworld_fast.install(env, env_name)
 
     def reset(self, seed: int) -> np.ndarray:
         self._env.np_random = np.random.Generator(np.random.PCG64(seed))
         obs, _ = self._env.reset()
         return obs.astype(np.float32)
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool]:
-        obs, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float64))
-        return obs.astype(np.float32), float(reward), bool(info["success"]), bool(terminated or truncated)
-
-
-def touching_object(env, object_geom_id: int) -> bool:
-    """Meta-World's `SawyerXYZEnv.touching_object` (both gripper pads press on the object) on
-    MuJoCo's contact arrays instead of a Python loop over contacts (31% of a profiled pick-place
-    step): the same contacts, forces summed in the same order, so the same answer."""
-    contacts = env.data.contact
-    with_object = (contacts.geom1 == object_geom_id) | (contacts.geom2 == object_geom_id)
-    for pad in ("leftpad_geom", "rightpad_geom"):
-        pad_id = env.data.geom(pad).id
-        touching = with_object & ((contacts.geom1 == pad_id) | (contacts.geom2 == pad_id))
-        if not sum(env.data.efc_force[a] for a in contacts.efc_address[touching]) > 0:
-            return False
-    return True
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, bool, bool]:
+        obs, _, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float64))
+        return obs.astype(np.float32), bool(info["success"]), bool(terminated or truncated)
 
 
 @dataclass(frozen=True)
