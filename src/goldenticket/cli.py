@@ -173,7 +173,30 @@ def _parser() -> argparse.ArgumentParser:
         "ticket", help="ticket file or bundled ticket id")
     tickets_sub.add_parser("list", help="the golden tickets shipped with the bundled policies").add_argument(
         "--json", action="store_true", help="print one JSON list")
+    _session_parser(sub)
     return parser
+
+
+def _session_parser(sub) -> None:
+    session = sub.add_parser("session", help="search on a real robot: a person scores each episode")
+    session_sub = session.add_subparsers(dest="session_command", required=True, parser_class=_Parser)
+    new = session_sub.add_parser("new", help="plan a session: N tickets x K episodes, then the top 2 "
+                                             "and the base on M episodes each, interleaved")
+    new.add_argument("--policy", required=True,
+                     help="the policy the robot runs (name, folder or import string)")
+    new.add_argument("--out", type=Path, required=True, help="session folder")
+    new.add_argument("--tickets", type=int, default=6, help="candidate tickets (N)")
+    new.add_argument("--episodes-per-ticket", type=int, default=25, help="search episodes per ticket (K)")
+    new.add_argument("--confirm", type=int, default=50, help="confirm episodes per finalist and base (M)")
+    new.add_argument("--seed", type=_seed, default=0,
+                     help="seed of the tickets, the order and the base noise")
+    serve = session_sub.add_parser("serve", help="the operator page and the robot's HTTP API")
+    serve.add_argument("folder", type=Path)
+    serve.add_argument("--host", default="127.0.0.1", help="interface; other than local needs --token")
+    serve.add_argument("--port", type=int, default=8765)
+    serve.add_argument("--token", default=None, help="required from every client when set")
+    session_sub.add_parser("score", help="score the session's episodes in this terminal").add_argument(
+        "folder", type=Path)
 
 
 def _joined_seed_ranges(argv: list[str]) -> list[str]:
@@ -337,8 +360,33 @@ def _tickets_list(as_json: bool) -> int:
     return 0
 
 
+def _session(args) -> int:
+    from goldenticket.session import Plan, Session
+
+    if args.session_command == "new":
+        from goldenticket.policies import load_policy, policy_label
+        from goldenticket.policies.registry import fingerprint
+
+        policy = load_policy(args.policy)
+        label = policy_label(args.policy)
+        plan = Plan(label, fingerprint(policy, label), tuple(policy.noise_shape), args.tickets,
+                    args.episodes_per_ticket, args.confirm, args.seed)
+        status = Session.new(args.out, plan).status()
+        print(f"Planned {status['planned']} search episodes in {args.out}; then {3 * args.confirm} "
+              f"confirm episodes. Next: goldenticket session serve {args.out}")
+        return 0
+    if args.session_command == "serve":
+        from goldenticket.session.server import serve
+
+        serve(args.folder, args.host, args.port, args.token)
+        return 0
+    from goldenticket.session.terminal import score_in_terminal
+
+    return score_in_terminal(Session(args.folder))
+
+
 COMMANDS = {"demo": _demo, "search": _search, "evaluate": _evaluate, "train": _train,
-            "policies": _policies, "tickets": _tickets}
+            "policies": _policies, "tickets": _tickets, "session": _session}
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -13,7 +13,8 @@ from goldenticket.files import write_atomic
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 
 
-def arms_png(rows: dict[str, dict], path: Path, title: str) -> Path:
+def arms_png(rows: dict[str, dict], path: Path, title: str, what: str = "held-out success",
+             unit: str = "seeds") -> Path:
     """One row per arm (base, zero ticket, tickets): held-out success with its 95% Wilson
     interval; golden tickets in gold, the base rate as a dashed line."""
     fig = Figure(figsize=(7.5, 1.4 + 0.45 * len(rows)))
@@ -27,8 +28,8 @@ def arms_png(rows: dict[str, dict], path: Path, title: str) -> Path:
     ax.axvline(rows["base"]["success_rate"], color=COLORS["base"], linestyle="--", linewidth=1)
     ax.set_yticks(range(len(rows)), list(rows))
     ax.invert_yaxis()
-    ax.set(xlim=(0, 1.08), title=title, xlabel=f"held-out success, 95% Wilson interval "
-                                                 f"(n = {rows['base']['n']} seeds)")
+    n = rows["base"]["n"]
+    ax.set(xlim=(0, 1.08), title=title, xlabel=f"{what}, 95% Wilson interval (n = {n} {unit})")
     ax.xaxis.set_major_formatter(PercentFormatter(1.0))
     handles, labels = ax.get_legend_handles_labels()
     if handles:
