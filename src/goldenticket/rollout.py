@@ -127,8 +127,7 @@ class Engine:
                  loaded: NoisePolicy | None = None):
         """`policy` as workers rebuild it (a name, or the object pickled); `loaded`: the policy
         already built from it, used in-process instead of building it again. A shard's episodes run
-        side by side, one env each: 16 fills one batched policy call and keeps a Meta-World worker
-        under 700 MB (32: 5% faster, 1 GB)."""
+        side by side, one env each: 16 fills one block of the bundled policies' batched call."""
         most = 4 * (os.cpu_count() or 1)
         if backend not in BACKENDS:
             raise UserError(f"unknown --backend {backend!r}; choose from {list(BACKENDS)}")

@@ -24,35 +24,91 @@ def task_names() -> list[str]:
     return sorted(f"metaworld/{name}" for name in _env_classes())
 
 
+# The only model arrays Meta-World writes after construction (at reset: object and goal
+# positions), found by comparing every array of every task's model before and after resets.
+SHARED_MODEL_WRITES = ("body_pos", "site_pos")
+
+
 class MetaWorldEnv:
     """A goal-observable Meta-World env whose reset(seed) fixes object and goal positions.
 
     Meta-World draws initial positions from `np_random` in `_get_state_rand_vec` (with its own
     rejection loops for some tasks); we reseed that generator from the integer seed at every
     reset, and `MujocoEnv.reset` restores the simulator state, so history does not leak in.
-    With `fast` (the default) the per-step Python is `metaworld_fast`'s bitwise-identical code;
-    `fast=False` steps Meta-World's own, for comparison.
+
+    With `fast` (the default) the per-step Python is `metaworld_fast`'s bitwise-identical code,
+    and all envs of one task in a process share one Meta-World env and its MuJoCo model (20 MB
+    of meshes and textures each otherwise): each env has its own MjData, its own attributes
+    (swapped in as the shared env's `__dict__`) and its own copy of the model arrays Meta-World
+    writes. `fast=False` is a plain Meta-World env, for comparison.
     """
 
     def __init__(self, env_name: str, fast: bool = True):
-        self._env = _env_classes()[env_name]()
-        env = self._env
-        env._partially_observable = False  # the goal is part of the observation
-        env.__dict__.pop("sawyer_observation_space", None)  # cached property: recompute
-        env._set_task_called = True
-        env._freeze_rand_vec = False
-        env.seeded_rand_vec = True
-        if fast:
-            metaworld_fast.install(env, env_name)
+        self._host = _shared_host(env_name) if fast else _Host(_configured(env_name))
+        self._attributes = self._host.fresh_attributes()
+        self._model_arrays = self._host.fresh_model_arrays()
 
     def reset(self, seed: int) -> np.ndarray:
-        self._env.np_random = np.random.Generator(np.random.PCG64(seed))
-        obs, _ = self._env.reset()
+        env = self._host.lend(self)
+        env.np_random = np.random.Generator(np.random.PCG64(seed))
+        obs, _ = env.reset()
         return obs.astype(np.float32)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, bool, bool]:
-        obs, _, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float64))
+        obs, _, terminated, truncated, info = self._host.lend(self).step(np.asarray(action, dtype=np.float64))
         return obs.astype(np.float32), bool(info["success"]), bool(terminated or truncated)
+
+
+class _Host:
+    """One Meta-World env lent to several `MetaWorldEnv`s in turn."""
+
+    def __init__(self, env, shared: bool = False):
+        self.env, self.shared, self.borrower = env, shared, None
+        self._attributes = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in vars(env).items()}
+        self._model_arrays = {name: getattr(env.model, name).copy() for name in SHARED_MODEL_WRITES}
+
+    def fresh_attributes(self) -> dict:
+        """The env's attributes as constructed (own arrays, own MjData), or the env's own if unshared."""
+        if not self.shared:
+            return vars(self.env)
+        import mujoco
+
+        fresh = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in self._attributes.items()}
+        return fresh | {"data": mujoco.MjData(self.env.model)}
+
+    def fresh_model_arrays(self) -> dict[str, np.ndarray]:
+        return {name: array.copy() for name, array in self._model_arrays.items()}
+
+    def lend(self, borrower: MetaWorldEnv):
+        """The env, holding `borrower`'s attributes and model arrays (the previous borrower's saved)."""
+        if self.borrower is not borrower:
+            model = self.env.model
+            if self.borrower is not None:
+                for name, saved in self.borrower._model_arrays.items():
+                    np.copyto(saved, getattr(model, name))
+            self.env.__dict__ = borrower._attributes
+            for name, saved in borrower._model_arrays.items():
+                np.copyto(getattr(model, name), saved)
+            self.borrower = borrower
+        return self.env
+
+
+@cache
+def _shared_host(env_name: str) -> _Host:
+    env = _configured(env_name)
+    metaworld_fast.install(env, env_name)
+    return _Host(env, shared=True)
+
+
+def _configured(env_name: str):
+    """A Meta-World env made goal-observable, its initial positions drawn at every reset."""
+    env = _env_classes()[env_name]()
+    env._partially_observable = False  # the goal is part of the observation
+    env.__dict__.pop("sawyer_observation_space", None)  # cached property: recompute
+    env._set_task_called = True
+    env._freeze_rand_vec = False
+    env.seeded_rand_vec = True
+    return env
 
 
 @dataclass(frozen=True)
