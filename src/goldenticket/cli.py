@@ -109,6 +109,9 @@ def _search_parser(sub) -> None:
     search.add_argument("--objective", default="success",
                         choices=["success", "discounted-success", "length"],
                         help="episode return the search maximises")
+    search.add_argument("--subspace", default="full",
+                        help="what the search varies: full (every entry), tiled (one action-sized vector "
+                             "repeated over the horizon), channels:I,J (those action channels; the others 0)")
     search.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     search.add_argument("--success", default=None, help=SUCCESS_HELP)
     _run_args(search)
@@ -129,6 +132,11 @@ def _evaluate_parser(sub) -> None:
     _engine_args(ev)
     ev.add_argument("--allow-transfer", action="store_true",
                     help="run tickets found for another policy or task (transfer studies)")
+    ev.add_argument("--mixture", action="store_true",
+                    help="add an arm that draws one of the tickets at every policy call, and report "
+                         "each arm's diversity (spread of executed actions from one initial state)")
+    ev.add_argument("--epsilon", type=float, default=0.0,
+                    help="with --mixture: fresh Gaussian noise instead of a ticket with this probability")
     ev.add_argument("--plot", type=Path, default=Path("evaluate.png"),
                     help="PNG of success with intervals per arm")
     ev.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
@@ -259,7 +267,7 @@ def _search(args) -> int:
     cfg = SearchConfig(args.policy, args.task, args.method, args.budget, args.seed,
                        args.search_seeds, args.heldout, args.top_k, args.objective,
                        args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
-                       args.success, args.backend, args.address)
+                       args.success, args.backend, args.address, args.subspace)
     return _run_search(cfg, args.out)
 
 
@@ -287,16 +295,24 @@ def _evaluate(args) -> int:
     if args.plot.is_dir() or not folder.is_dir() or not os.access(folder, os.W_OK):
         raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
     rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
-                            args.allow_transfer, args.max_steps, args.success, args.backend, args.address)
-    tickets = [r | {"ticket_id": label} for label, r in rows.items() if label not in ("base", "zero")]
+                            args.allow_transfer, args.max_steps, args.success, args.backend, args.address,
+                            args.mixture, args.epsilon)
+    tickets = [r | {"ticket_id": label} for label, r in rows.items()
+               if label not in ("base", "zero", "mixture")]
     arms = arm_rows(rows["base"], rows["zero"], tickets)
+    if args.mixture:
+        epsilon = f", eps {args.epsilon:g}" if args.epsilon else ""
+        arms[f"mixture of {len(tickets)}{epsilon}"] = rows["mixture"]
     best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],
                key=lambda r: (r["success_rate"], -r["p_value"]))
     arms_png(arms, args.plot, f"{args.policy} on {args.task}, seeds {args.seeds.start}:{args.seeds.stop}")
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
-        print(verdict_text(arms, best, p_value_note(len(tickets))))
+        print(verdict_text(arms, best, p_value_note(len(arms) - 2)))
+        if args.mixture:
+            print("diversity (RMS spread of executed actions across 5 noise streams from each of the first "
+                  "10 seeds): " + ", ".join(f"{label} {r['diversity']:.3f}" for label, r in arms.items()))
         print(f"Wrote {args.plot}.")
     return 0
 

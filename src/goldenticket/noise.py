@@ -38,15 +38,24 @@ class Constant:
 
 @dataclass(frozen=True, eq=False)
 class TopK:
-    """Stochastic tickets: one of k tickets, drawn uniformly at every call."""
+    """Stochastic tickets: one of k tickets, drawn uniformly at every call; with probability
+    `epsilon`, fresh N(0, I) noise instead. Seeded by the episode."""
 
     tickets: np.ndarray  # [k, H, A]
     seed: int = 0
-    label: str = field(default="top-k")
+    epsilon: float = 0.0
+    label: str = field(default="mixture")
 
     def sampler(self, episode_seed: int, shape: tuple[int, int]) -> Sampler:
+        if self.tickets.shape[1:] != tuple(shape):
+            raise ValueError(f"ticket shape {self.tickets.shape[1:]} != policy noise shape {shape}")
         rng = np.random.default_rng([self.seed, episode_seed])
-        return lambda: self.tickets[rng.integers(len(self.tickets))]
+
+        def draw() -> np.ndarray:
+            if self.epsilon > 0 and rng.random() < self.epsilon:
+                return rng.standard_normal(shape, dtype=np.float32)
+            return self.tickets[rng.integers(len(self.tickets))]
+        return draw
 
 
 NoiseSource = Gaussian | Constant | TopK

@@ -32,14 +32,17 @@ class EpisodeResult:
     ret: float  # the objective's return for this episode
     length: int
     wall_time: float
+    actions: np.ndarray | None = None  # [length, A], the executed actions, when recorded
 
 
 def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
-            objective: str = "success", envs: list | None = None) -> list[EpisodeResult]:
+            objective: str = "success", envs: list | None = None,
+            record_actions: bool = False) -> list[EpisodeResult]:
     """Run episodes side by side: one batched policy call per replanning step for all live envs.
 
     An env leaves the batch when it succeeds, says it is done, or reaches `task.max_steps`. Each episode's
-    result depends only on its (source, seed), never on its batch slot.
+    result depends only on its (source, seed), never on its batch slot. `record_actions` keeps
+    each episode's executed actions in its result.
     """
     n = len(episodes)
     envs = [] if envs is None else envs
@@ -49,7 +52,7 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
     samplers = [ep.source.sampler(ep.seed, policy.noise_shape) for ep in episodes]
     length = np.zeros(n, dtype=int)
     success, done = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-    live = list(range(n))
+    live, executed = list(range(n)), [[] for _ in range(n)]
     while live:
         noise = np.stack([samplers[i]() for i in live])
         chunks = checked_actions(policy, policy.act(stack([obs[i] for i in live]), noise), len(live))
@@ -57,13 +60,15 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
             for action in chunk:
                 obs[i], success[i], done[i] = envs[i].step(action)
                 length[i] += 1
+                if record_actions:
+                    executed[i].append(action)
                 if success[i] or done[i] or length[i] >= task.max_steps:
                     break
         live = [i for i in live if not (success[i] or done[i]) and length[i] < task.max_steps]
     wall = (time.perf_counter() - start) / max(n, 1)  # episodes ran side by side: the mean
     score = OBJECTIVES[objective]
-    return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]),
-                                                            task.max_steps), int(length[i]), wall)
+    return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]), task.max_steps),
+                          int(length[i]), wall, np.array(executed[i]) if record_actions else None)
             for i, ep in enumerate(episodes)]
 
 

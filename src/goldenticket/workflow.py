@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import functools
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -15,16 +16,18 @@ from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator, Judged, judge, p_value_note
 from goldenticket.factories import import_name
 from goldenticket.files import write_atomic
-from goldenticket.noise import Constant, Gaussian
+from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.plots import arms_png, search_png
 from goldenticket.policies import NoisePolicy, load_policy, policy_label
 from goldenticket.policies import fingerprint as policy_fingerprint
 from goldenticket.rollout import Engine
 from goldenticket.stats import holm_adjust
 from goldenticket.store import RunStore
+from goldenticket.studies.diversity import action_spread
 from goldenticket.tasks import OBJECTIVES, get_task, seeds_in
 from goldenticket.tasks.base import require_heldout, require_unseen
 from goldenticket.ticket_search import EpisodeOutcome, SearchResult, make_optimizer, run_search
+from goldenticket.ticket_search.subspace import Subspace
 from goldenticket.tickets import Ticket, zero_ticket
 
 
@@ -48,6 +51,7 @@ class SearchConfig:
     success: str | Callable | None = None  # Gymnasium tasks: predicate (obs, info) -> bool
     backend: str = "local"  # or "ray": episodes on Ray actors
     address: str | None = None  # the Ray cluster (None: a local Ray instance)
+    subspace: str = "full"  # or "tiled", "channels:I,J" (ticket_search.subspace)
 
     def check(self) -> None:
         """Every option, before any episode runs."""
@@ -63,9 +67,10 @@ class SearchConfig:
             raise UserError(f"unknown objective {self.objective!r}; choose from {list(OBJECTIVES)}")
 
     def optimizer(self, noise_shape: tuple[int, int], search_seeds: list[int]):
-        """This run's optimizer, fresh from its seed; UserError if the budget cannot score even
-        the first ticket it asks for."""
-        optimizer = make_optimizer(self.method, noise_shape, search_seeds, np.random.default_rng(self.seed))
+        """This run's optimizer over its sub-space, fresh from its seed; UserError if the budget
+        cannot score even the first ticket it asks for."""
+        searched = Subspace.parse(self.subspace, noise_shape).shape(noise_shape)
+        optimizer = make_optimizer(self.method, searched, search_seeds, np.random.default_rng(self.seed))
         needed = len(copy.deepcopy(optimizer).ask()[0].seeds)
         if self.budget < needed:
             raise UserError(f"--budget {self.budget} is too small: {self.method} needs {needed} "
@@ -80,6 +85,8 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
     optimizer = cfg.optimizer(policy.noise_shape, search_seeds)
     names = Names.of(cfg.policy, policy, task.name)
+    expand = functools.partial(Subspace.parse(cfg.subspace, policy.noise_shape).expand,
+                               noise_shape=policy.noise_shape)
     task.check()
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     with _open_store(out, cfg, names) as store, \
@@ -89,12 +96,12 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
         with progress_bar(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
         with progress_bar(evaluator, cfg.budget, f"search ({cfg.method})") as bar:
-            result = run_search(optimizer, query_evaluator(evaluator, names.fingerprint), budget=cfg.budget,
-                                stop_after_perfect=cfg.stop_after_perfect,
+            result = run_search(optimizer, query_evaluator(evaluator, names.fingerprint, expand),
+                                budget=cfg.budget, stop_after_perfect=cfg.stop_after_perfect,
                                 max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
         top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds)) or result.top(cfg.top_k)
-        tickets = [_ticket(cfg, names, result, c, search_seeds) for c in top]
+        tickets = [_ticket(cfg, names, result, c, search_seeds, expand) for c in top]
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
@@ -157,21 +164,25 @@ def progress_bar(evaluator: Evaluator, total: int, desc: str) -> tqdm:
     return bar
 
 
-def query_evaluator(evaluator: Evaluator, fingerprint: str):
-    """The search driver's evaluate(): each query's episodes, labelled by the ticket's id."""
+def query_evaluator(evaluator: Evaluator, fingerprint: str, expand: Callable = lambda searched: searched):
+    """The search driver's evaluate(): each query's episodes, labelled by the ticket's id;
+    `expand` turns a searched array into the full ticket."""
     def evaluate(queries):
-        jobs = [(Ticket(q.ticket, {"policy_fingerprint": fingerprint}).id, Constant(q.ticket), q.seeds)
-                for q in queries]
+        tickets = [expand(q.ticket) for q in queries]
+        jobs = [(Ticket(t, {"policy_fingerprint": fingerprint}).id, Constant(t), q.seeds)
+                for t, q in zip(tickets, queries, strict=True)]
         return [EpisodeOutcome(np.array([r.ret for r in rs]), np.array([r.success for r in rs]))
                 for rs in evaluator.run(jobs)]
     return evaluate
 
 
 def _ticket(cfg: SearchConfig, names: Names, result: SearchResult, candidate,
-            search_seeds: list[int]) -> Ticket:
-    return Ticket(candidate.ticket, {
+            search_seeds: list[int], expand: Callable) -> Ticket:
+    noise = expand(candidate.ticket)
+    return Ticket(noise, {
         "policy": names.policy, "policy_fingerprint": names.fingerprint,
-        "noise_shape": list(candidate.ticket.shape), "task": names.task, "method": cfg.method,
+        "noise_shape": list(noise.shape), "task": names.task, "method": cfg.method,
+        "subspace": cfg.subspace, "searched_shape": list(candidate.ticket.shape),
         "budget": cfg.budget, "episodes_used": result.episodes_used, "seed": cfg.seed,
         "objective": cfg.objective, "search_seeds": [search_seeds[0], search_seeds[-1]],
         "search_score": candidate.mean_return, "search_episodes": candidate.n,
@@ -214,13 +225,20 @@ def _summary(cfg: SearchConfig, names: Names, judged: dict[str, Judged], entries
 def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ticket_paths: list[Path],
                      seeds: list[int], seed: int = 0, workers: int = 2, allow_transfer: bool = False,
                      max_steps: int | None = None, success: str | Callable | None = None,
-                     backend: str = "local", address: str | None = None) -> dict[str, dict]:
+                     backend: str = "local", address: str | None = None, mixture: bool = False,
+                     epsilon: float = 0.0) -> dict[str, dict]:
     """Base, zero ticket and each ticket on held-out `seeds`: one-sided paired p-values vs base
     and vs zero, Holm-adjusted over the tickets. A ticket found for another policy or task is
-    refused unless `allow_transfer`."""
+    refused unless `allow_transfer`. `mixture` adds an arm that draws one of the tickets at every
+    policy call (Gaussian noise with probability `epsilon`), and gives every arm its `diversity`
+    (`studies.diversity.action_spread` on the first 10 seeds)."""
     require_heldout(seeds)
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
+    if mixture and len(set(ticket_paths)) < 2:
+        raise UserError("--mixture needs at least 2 tickets (--ticket A --ticket B)")
+    if not 0 <= epsilon <= 1 or (epsilon and not mixture):
+        raise UserError(f"--epsilon must be in [0, 1] and comes with --mixture, got {epsilon}")
     policy, task = load_policy(policy_ref), get_task(task_ref, max_steps, success)
     loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape) for path in ticket_paths}
     names = Names.of(policy_ref, policy, task.name)
@@ -231,11 +249,20 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
             require_unseen(seeds, searched, f"search seeds of {path}")
     tickets = list({t.id: t for t in loaded.values()}.values())  # a ticket named twice is judged once
     task.check()
-    sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
-    sources |= {t.id: Constant(t.noise) for t in tickets}
+    zero = Constant(zero_ticket(policy.noise_shape).noise)
+    reseeded = {"base": lambda r: Gaussian(seed + r), "zero": lambda r: zero}
+    reseeded |= {t.id: lambda r, t=t: Constant(t.noise) for t in tickets}
+    if mixture:
+        stacked = np.stack([t.noise for t in tickets])
+        reseeded["mixture"] = lambda r: TopK(stacked, seed + r, epsilon)
+    sources = {label: source(0) for label, source in reseeded.items() if label != "base"}
     with Engine(policy_ref, task, workers=workers, backend=backend, address=address, loaded=policy) as engine:
         evaluator = Evaluator(engine)
         with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
             judged = judge(evaluator, sources, seeds, Gaussian(seed))
-    _adjust_for_multiplicity(judged, [t.id for t in tickets])
-    return {label: j.to_dict() for label, j in judged.items()}
+    _adjust_for_multiplicity(judged, [label for label in sources if label != "zero"])
+    rows = {label: j.to_dict() for label, j in judged.items()}
+    if mixture:
+        for label, source in tqdm(reseeded.items(), desc="diversity", unit="arm"):
+            rows[label]["diversity"] = action_spread(policy, task, source, seeds[:10])
+    return rows

@@ -1,0 +1,1 @@
+"""Studies that compose search and evaluation: diversity of stochastic tickets, ..."""

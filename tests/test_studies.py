@@ -1,0 +1,64 @@
+"""Studies: mixture arms and their diversity, ..."""
+
+import json
+
+import numpy as np
+
+from goldenticket.cli import main
+from goldenticket.tickets import Ticket
+
+POLICY, TASK = "metaworld/reach-v3/flow", "metaworld/reach-v3"
+
+
+def _tickets(tmp_path, n: int) -> list[str]:
+    rng = np.random.default_rng(0)
+    return [str(Ticket(rng.standard_normal((8, 4), dtype=np.float32)).save(tmp_path / f"t{i}.safetensors"))
+            for i in range(n)]
+
+
+def test_a_mixture_arm_is_judged_and_spreads_between_tickets_and_base(tmp_path, capsys):
+    args = ["evaluate", "--policy", POLICY, "--task", TASK, "--seeds", "1000000:1000012", "--max-steps", "40",
+            "--workers", "1", "--plot", str(tmp_path / "e.png"), "--mixture", "--epsilon", "0.2", "--json"]
+    for ticket in _tickets(tmp_path, 2):
+        args += ["--ticket", ticket]
+    assert main(args) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert set(rows) == {"base", "zero", "mixture", *(Ticket.load(t).id for t in _tickets(tmp_path, 2))}
+    assert rows["mixture"]["n"] == 12 and "p_value" in rows["mixture"]
+    tickets = [r["diversity"] for label, r in rows.items() if label not in ("base", "mixture")]
+    assert tickets == [0.0, 0.0, 0.0]  # constant noise, deterministic policy and env
+    assert rows["base"]["diversity"] > rows["mixture"]["diversity"] > 0
+
+
+def test_mixture_options_are_checked(tmp_path, capsys):
+    one, two = _tickets(tmp_path, 1), _tickets(tmp_path, 2)
+    base = ["evaluate", "--policy", POLICY, "--task", TASK, "--seeds", "1000000:1000004",
+            "--plot", str(tmp_path / "e.png")]
+    assert main([*base, "--ticket", one[0], "--mixture"]) == 2
+    assert main([*base, "--ticket", two[0], "--ticket", two[1], "--epsilon", "0.1"]) == 2
+    assert main([*base, "--ticket", two[0], "--ticket", two[1], "--mixture", "--epsilon", "1.5"]) == 2
+    errors = capsys.readouterr().err.splitlines()
+    assert len(errors) == 3 and "at least 2 tickets" in errors[0] and "--epsilon" in errors[1]
+
+
+def _search(tmp_path, subspace: str) -> int:
+    return main(["search", "--policy", POLICY, "--task", TASK, "--method", "rs", "--budget", "12",
+                 "--search-seeds", "3", "--heldout", "4", "--top-k", "1", "--max-steps", "30", "--workers", "1",
+                 "--subspace", subspace, "--out", str(tmp_path / subspace.replace(":", "-"))])
+
+
+def test_subspace_search_saves_full_tickets_that_record_their_subspace(tmp_path):
+    assert _search(tmp_path, "tiled") == 0 and _search(tmp_path, "channels:3") == 0
+    tiled = Ticket.load(next((tmp_path / "tiled" / "tickets").glob("*.safetensors")))
+    assert tiled.noise.shape == (8, 4) and (tiled.noise == tiled.noise[0]).all()
+    assert tiled.metadata["subspace"] == "tiled" and tiled.metadata["searched_shape"] == [1, 4]
+    gripper = Ticket.load(next((tmp_path / "channels-3" / "tickets").glob("*.safetensors")))
+    assert (gripper.noise[:, :3] == 0).all() and (gripper.noise[:, 3] != 0).all()
+    assert gripper.metadata["searched_shape"] == [8, 1]
+
+
+def test_bad_subspaces_exit_2_with_one_line(tmp_path, capsys):
+    for bad in ("channels:9", "channels:x", "channels:1,1", "diagonal"):
+        assert _search(tmp_path, bad) == 2
+    errors = capsys.readouterr().err.splitlines()
+    assert len(errors) == 4 and all(e.startswith("goldenticket: error: --subspace") for e in errors)
