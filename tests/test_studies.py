@@ -43,8 +43,9 @@ def test_mixture_options_are_checked(tmp_path, capsys):
 
 def _search(tmp_path, subspace: str) -> int:
     return main(["search", "--policy", POLICY, "--task", TASK, "--method", "rs", "--budget", "12",
-                 "--search-seeds", "3", "--heldout", "4", "--top-k", "1", "--max-steps", "30", "--workers", "1",
-                 "--subspace", subspace, "--out", str(tmp_path / subspace.replace(":", "-"))])
+                 "--search-seeds", "3", "--heldout", "4", "--top-k", "1", "--max-steps", "30",
+                 "--workers", "1", "--subspace", subspace,
+                 "--out", str(tmp_path / subspace.replace(":", "-"))])
 
 
 def test_subspace_search_saves_full_tickets_that_record_their_subspace(tmp_path):
@@ -62,3 +63,40 @@ def test_bad_subspaces_exit_2_with_one_line(tmp_path, capsys):
         assert _search(tmp_path, bad) == 2
     errors = capsys.readouterr().err.splitlines()
     assert len(errors) == 4 and all(e.startswith("goldenticket: error: --subspace") for e in errors)
+
+
+def test_non_dominated_keeps_the_front_and_ties():
+    from goldenticket.studies.pareto import non_dominated
+
+    points = [(0.5, 0.6), (0.7, 0.5), (0.5, 0.6), (0.4, 0.4), (0.7, 0.4), (0.2, 0.9)]
+    assert non_dominated(points) == [0, 1, 2, 5]
+
+
+def test_a_two_objective_search_writes_the_front_and_a_policy_switches_along_it(tmp_path, capsys):
+    from goldenticket.policies import TicketedPolicy, load_policy
+
+    out = tmp_path / "front"
+    assert main(["search", "--policy", POLICY, "--task", TASK, "--method", "rs", "--budget", "24",
+                 "--search-seeds", "3", "--heldout", "6", "--top-k", "1", "--max-steps", "40",
+                 "--workers", "1", "--objective", "success", "--objective", "speed", "--out", str(out)]) == 0
+    assert "Pareto front (success vs speed)" in capsys.readouterr().out
+    study = json.loads((out / "front.json").read_text())
+    front = [e["ticket_id"] for e in study["search"] if e["front"]]
+    assert len(study["search"]) == 8 and front and set(study["heldout"]) == {"base", "zero", *front}
+    assert json.loads((out / "summary.json").read_text())["front"] == front
+    assert (out / "front.png").stat().st_size > 0
+    deployed = TicketedPolicy(load_policy(POLICY), np.zeros((8, 4), np.float32))
+    obs = np.zeros((1, 39), np.float32)
+    for ticket_id in front:
+        ticket = Ticket.load(out / "tickets" / f"{ticket_id}.safetensors")
+        assert ticket.metadata["front"]["objectives"] == ["success", "speed"]
+        deployed.use(ticket.noise)
+        assert np.array_equal(deployed.act(obs), deployed.policy.act(obs, ticket.noise[None]))
+
+
+def test_objective_combinations_are_checked(tmp_path, capsys):
+    base = ["search", "--policy", POLICY, "--task", TASK, "--budget", "10", "--out", str(tmp_path / "x")]
+    assert main([*base, "--objective", "success", "--objective", "success"]) == 2
+    assert main([*base, "--objective", "success", "--objective", "speed", "--objective", "length"]) == 2
+    errors = capsys.readouterr().err.splitlines()
+    assert len(errors) == 2 and "two different" in errors[0] and "takes two" in errors[1]

@@ -106,9 +106,11 @@ def _search_parser(sub) -> None:
                         help="stop after this many distinct tickets (default: no cap)")
     search.add_argument("--stop-after-perfect", type=int, default=3,
                         help="stop once this many tickets succeed on every search seed (0: never)")
-    search.add_argument("--objective", default="success",
-                        choices=["success", "discounted-success", "length"],
-                        help="episode return the search maximises")
+    search.add_argument("--objective", action="append", default=None,
+                        choices=["success", "discounted-success", "length", "speed"],
+                        help="episode return the search maximises (default success); give a second one "
+                             "to also find the Pareto front between them (front.json, front.png); "
+                             "speed: short successful episodes")
     search.add_argument("--subspace", default="full",
                         help="what the search varies: full (every entry), tiled (one action-sized vector "
                              "repeated over the horizon), channels:I,J (those action channels; the others 0)")
@@ -264,10 +266,14 @@ def _demo(args) -> int:
 def _search(args) -> int:
     from goldenticket.workflow import SearchConfig
 
+    objectives = args.objective or ["success"]
+    if len(objectives) > 2:
+        raise UserError(f"--objective given {len(objectives)} times; a Pareto front takes two")
     cfg = SearchConfig(args.policy, args.task, args.method, args.budget, args.seed,
-                       args.search_seeds, args.heldout, args.top_k, args.objective,
+                       args.search_seeds, args.heldout, args.top_k, objectives[0],
                        args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
-                       args.success, args.backend, args.address, args.subspace)
+                       args.success, args.backend, args.address, args.subspace,
+                       objectives[1] if len(objectives) == 2 else None)
     return _run_search(cfg, args.out)
 
 
@@ -278,6 +284,10 @@ def _run_search(cfg, out: Path) -> int:
     start = time.perf_counter()
     s = find_golden_tickets(cfg, out)
     print(verdict_text(arm_rows(s["base"], s["zero"], s["tickets"]), s["best"], s["p_value_note"]))
+    if "front" in s:
+        print(f"Pareto front ({cfg.objective} vs {cfg.front_objective}): {len(s['front'])} tickets "
+              f"({', '.join(s['front'])}), judged on the held-out seeds in {out / 'front.json'} and "
+              f"front.png; their files are in {out / 'tickets'}.")
     print(f"Best ticket saved to {s['best']['ticket_path']}. Wrote {out / 'summary.json'}, "
           f"verdict.png and search.png in {time.perf_counter() - start:.0f} s.")
     return 0

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from goldenticket.noise import Gaussian, NoiseSource
 from goldenticket.rollout import Engine, Episode, EpisodeResult
-from goldenticket.stats import Rate, paired_exact_test
+from goldenticket.stats import Rate, holm_adjust, paired_exact_test
 from goldenticket.store import EpisodeRow, RunStore
 from goldenticket.tasks.base import seed_set_of
 
@@ -94,6 +94,14 @@ def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence
             judged[label].p_vs_zero = paired_exact_test(judged[label].successes,
                                                         judged["zero"].successes)
     return judged
+
+
+def adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) -> None:
+    """Testing k tickets on the same seeds: Holm-adjust their p-values so 'golden' stays honest."""
+    for attr in ("p_value", "p_vs_zero"):
+        adjusted = holm_adjust([getattr(judged[t], attr) for t in ticket_ids])
+        for ticket_id, p in zip(ticket_ids, adjusted, strict=True):
+            setattr(judged[ticket_id], attr, p)
 
 
 def p_value_note(n_tickets: int) -> str:

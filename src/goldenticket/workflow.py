@@ -13,7 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Evaluator, Judged, judge, p_value_note
+from goldenticket.evaluation import Evaluator, Judged, adjust_for_multiplicity, judge, p_value_note
 from goldenticket.factories import import_name
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian, TopK
@@ -21,9 +21,9 @@ from goldenticket.plots import arms_png, search_png
 from goldenticket.policies import NoisePolicy, load_policy, policy_label
 from goldenticket.policies import fingerprint as policy_fingerprint
 from goldenticket.rollout import Engine
-from goldenticket.stats import holm_adjust
 from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
+from goldenticket.studies.pareto import pareto_study
 from goldenticket.tasks import OBJECTIVES, get_task, seeds_in
 from goldenticket.tasks.base import require_heldout, require_unseen
 from goldenticket.ticket_search import EpisodeOutcome, SearchResult, make_optimizer, run_search
@@ -52,6 +52,7 @@ class SearchConfig:
     backend: str = "local"  # or "ray": episodes on Ray actors
     address: str | None = None  # the Ray cluster (None: a local Ray instance)
     subspace: str = "full"  # or "tiled", "channels:I,J" (ticket_search.subspace)
+    front_objective: str | None = None  # a second objective: also find the Pareto front (studies.pareto)
 
     def check(self) -> None:
         """Every option, before any episode runs."""
@@ -63,8 +64,12 @@ class SearchConfig:
         for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets", "max_steps"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise UserError(f"--{name.replace('_', '-')} must be > 0, got {getattr(self, name)}")
-        if self.objective not in OBJECTIVES:
-            raise UserError(f"unknown objective {self.objective!r}; choose from {list(OBJECTIVES)}")
+        for objective in filter(None, (self.objective, self.front_objective)):
+            if objective not in OBJECTIVES:
+                raise UserError(f"unknown objective {objective!r}; choose from {list(OBJECTIVES)}")
+        if self.front_objective == self.objective:
+            raise UserError(f"--objective {self.objective} twice: a Pareto front needs two different "
+                            "objectives")
 
     def optimizer(self, noise_shape: tuple[int, int], search_seeds: list[int]):
         """This run's optimizer over its sub-space, fresh from its seed; UserError if the budget
@@ -105,15 +110,43 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
-    _adjust_for_multiplicity(judged, [t.id for t in tickets])
+        if cfg.front_objective:
+            front = _front(cfg, names, evaluator, result, (search_seeds, heldout), (base, zero), expand,
+                           task.max_steps, out)
+    adjust_for_multiplicity(judged, [t.id for t in tickets])
     span = [heldout[0], heldout[-1]]
     summary = _summary(cfg, names, judged, _save_ranked(tickets, judged, out, span), result, span)
+    if cfg.front_objective:
+        summary["front"] = [label for label in front["heldout"] if label not in ("base", "zero")]
     write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     title = f"{names.policy} on {names.task}"
     arms_png(arm_rows(summary["base"], summary["zero"], summary["tickets"]), out / "verdict.png", title)
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
                out / "search.png", f"{cfg.method} search: {title}")
     return summary
+
+
+def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: SearchResult, seeds: tuple,
+           baselines: tuple, expand: Callable, max_steps: int, out: Path) -> dict:
+    """The Pareto front of the search's tickets for (objective, front objective), judged on the
+    held-out seeds; its tickets saved, front.json and front.png written."""
+    search_seeds, heldout = seeds
+    scored = {}
+    for candidate in result.candidates:
+        if candidate.n >= len(search_seeds):
+            noise = expand(candidate.ticket)
+            scored[Ticket(noise, {"policy_fingerprint": names.fingerprint}).id] = (Constant(noise), candidate)
+
+    def save(candidate, front_metadata: dict) -> str:
+        ticket = _ticket(cfg, names, result, candidate, search_seeds, expand)
+        ticket.metadata["front"] = front_metadata
+        return str(ticket.save(out / "tickets" / f"{ticket.id}.safetensors"))
+
+    with progress_bar(evaluator, cfg.heldout * (len(scored) + 2), "Pareto front"):
+        study = pareto_study(evaluator, scored, (cfg.objective, cfg.front_objective), max_steps=max_steps,
+                             heldout=heldout, base=baselines[0], zero=baselines[1], save=save, out=out)
+    write_atomic(out / "front.json", json.dumps(study, indent=2) + "\n")
+    return study
 
 
 def arm_rows(base: dict, zero: dict, tickets: list[dict]) -> dict[str, dict]:
@@ -189,14 +222,6 @@ def _ticket(cfg: SearchConfig, names: Names, result: SearchResult, candidate,
     })
 
 
-def _adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) -> None:
-    """Testing k tickets on the same seeds: Holm-adjust their p-values so 'golden' stays honest."""
-    for attr in ("p_value", "p_vs_zero"):
-        adjusted = holm_adjust([getattr(judged[t], attr) for t in ticket_ids])
-        for ticket_id, p in zip(ticket_ids, adjusted, strict=True):
-            setattr(judged[ticket_id], attr, p)
-
-
 def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path,
                  span: list[int]) -> list[dict]:
     """Save each ticket with its held-out result; entries best first (success, then p)."""
@@ -260,7 +285,7 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
         evaluator = Evaluator(engine)
         with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
             judged = judge(evaluator, sources, seeds, Gaussian(seed))
-    _adjust_for_multiplicity(judged, [label for label in sources if label != "zero"])
+    adjust_for_multiplicity(judged, [label for label in sources if label != "zero"])
     rows = {label: j.to_dict() for label, j in judged.items()}
     if mixture:
         for label, source in tqdm(reseeded.items(), desc="diversity", unit="arm"):

@@ -31,9 +31,15 @@ class TicketedPolicy:
     """Deployment: a NoisePolicy that always uses one ticket; `act(obs)` needs no noise."""
 
     def __init__(self, policy: NoisePolicy, noise: np.ndarray):
-        if tuple(noise.shape) != tuple(policy.noise_shape):
-            raise ValueError(f"ticket shape {noise.shape} != policy noise shape {policy.noise_shape}")
-        self.policy, self.noise = policy, np.asarray(noise, dtype=np.float32)
+        self.policy = policy
+        self.use(noise)
+
+    def use(self, noise: np.ndarray) -> None:
+        """Switch to another ticket (e.g. another point of a Pareto front) between episodes; the
+        model stays loaded."""
+        if tuple(noise.shape) != tuple(self.policy.noise_shape):
+            raise ValueError(f"ticket shape {noise.shape} != policy noise shape {self.policy.noise_shape}")
+        self.noise = np.asarray(noise, dtype=np.float32)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """obs [B, obs_dim] -> actions [B, n_exec, A], the ticket broadcast over the batch."""

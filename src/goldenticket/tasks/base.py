@@ -61,6 +61,7 @@ OBJECTIVES: dict[str, Callable[[bool, int, int], float]] = {
     "success": lambda success, length, max_steps: float(success),
     "discounted-success": _discounted,
     "length": lambda success, length, max_steps: -length / max_steps,
+    "speed": lambda success, length, max_steps: (1 - length / max_steps) if success else 0.0,
 }
 
 
