@@ -221,9 +221,9 @@ class Session:
             top = sorted(candidates, key=lambda a: -wins[a])[:2]  # stable: ties keep candidate order
             arms = [arm for arm in (*top, BASE) for _ in range(plan.confirm)]
             np.random.default_rng([plan.seed, 1]).shuffle(arms)
-            start = plan.tickets * plan.episodes_per_ticket
-            self._con.executemany("INSERT INTO episodes (episode, phase, arm) VALUES (?, 'confirm', ?)",
-                                  [(start + i, a) for i, a in enumerate(arms)])
+            start = plan.tickets * plan.episodes_per_ticket  # the same rows from any process that plans
+            self._con.executemany("INSERT OR IGNORE INTO episodes (episode, phase, arm) "
+                                  "VALUES (?, 'confirm', ?)", [(start + i, a) for i, a in enumerate(arms)])
         for arm in top:  # the finalists as ticket files, ready to deploy once the verdict is in
             meta = {"policy": plan.policy, "policy_fingerprint": plan.policy_fingerprint,
                     "session_search": {"successes": int(wins[arm]), "episodes": plan.episodes_per_ticket}}

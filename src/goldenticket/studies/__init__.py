@@ -1,1 +1,1 @@
-"""Studies that compose search and evaluation: diversity of stochastic tickets, ..."""
+"""Studies that compose rollouts and evaluation: diversity of noise sources, Pareto fronts."""

@@ -15,6 +15,7 @@ import numpy as np
 
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
 from goldenticket.noise import NoiseSource
+from goldenticket.plots import front_png
 from goldenticket.rollout import EpisodeResult
 from goldenticket.tasks import OBJECTIVES
 from goldenticket.ticket_search import Candidate
@@ -48,11 +49,9 @@ def pareto_study(evaluator: Evaluator, scored: dict[str, tuple[NoiseSource, Cand
     """The front among the `scored` tickets (label -> its noise source and search candidate),
     judged on `heldout` beside base and zero; `save(candidate, front_metadata)` writes a front
     ticket and returns its path. Writes `front.png` into `out` and returns what front.json holds."""
-    from goldenticket.plots import front_png
-
     labels = list(scored)
     searched = evaluator.run([(label, source, c.seeds) for label, (source, c) in scored.items()])
-    points = [tuple(ticket_score(o, runs, max_steps) for o in objectives) for runs in searched]
+    points = [tuple(_scores(objectives, runs, max_steps).values()) for runs in searched]
     front = [labels[i] for i in non_dominated(points)]
     arms = {"base": base, "zero": zero} | {label: scored[label][0] for label in front}
     judged = judge(evaluator, {k: v for k, v in arms.items() if k != "base"}, heldout, base)
