@@ -196,9 +196,15 @@ def test_session_commands_refuse_bad_input_in_one_line(tmp_path, capsys):
     assert main(["session", "new", "--policy", POLICY, "--out", str(out)]) == 2
     assert main(["session", "serve", str(out), "--host", "0.0.0.0"]) == 2
     assert main(["session", "score", str(tmp_path / "nothing")]) == 2
+    assert main(["session", "serve", str(out), "--port", "70000"]) == 2
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        assert main(["session", "serve", str(out), "--port", str(taken.getsockname()[1])]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if line]
-    assert len(errors) == 4 and all(line.startswith("goldenticket: error: ") for line in errors)
+    assert len(errors) == 6 and all(line.startswith("goldenticket: error: ") for line in errors)
     assert "--token" in errors[2] and "no session here" in errors[3]
+    assert "1..65535" in errors[4] and "cannot listen" in errors[5]
 
 
 def test_readme_robot_loop_runs_as_written(tmp_path):

@@ -34,11 +34,11 @@ def test_mixture_options_are_checked(tmp_path, capsys):
     one, two = _tickets(tmp_path, 1), _tickets(tmp_path, 2)
     base = ["evaluate", "--policy", POLICY, "--task", TASK, "--seeds", "1000000:1000004",
             "--plot", str(tmp_path / "e.png")]
-    assert main([*base, "--ticket", one[0], "--mixture"]) == 2
+    assert main([*base, "--ticket", one[0], "--ticket", one[0], "--mixture"]) == 2
     assert main([*base, "--ticket", two[0], "--ticket", two[1], "--epsilon", "0.1"]) == 2
     assert main([*base, "--ticket", two[0], "--ticket", two[1], "--mixture", "--epsilon", "1.5"]) == 2
     errors = capsys.readouterr().err.splitlines()
-    assert len(errors) == 3 and "at least 2 tickets" in errors[0] and "--epsilon" in errors[1]
+    assert len(errors) == 3 and "at least 2 different tickets" in errors[0] and "--epsilon" in errors[1]
 
 
 def _search(tmp_path, subspace: str) -> int:

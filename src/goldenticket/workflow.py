@@ -260,8 +260,6 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
     require_heldout(seeds)
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
-    if mixture and len(set(ticket_paths)) < 2:
-        raise UserError("--mixture needs at least 2 tickets (--ticket A --ticket B)")
     if not 0 <= epsilon <= 1 or (epsilon and not mixture):
         raise UserError(f"--epsilon must be in [0, 1] and comes with --mixture, got {epsilon}")
     policy, task = load_policy(policy_ref), get_task(task_ref, max_steps, success)
@@ -273,6 +271,8 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
         if (searched := ticket.search_seeds()) is not None:
             require_unseen(seeds, searched, f"search seeds of {path}")
     tickets = list({t.id: t for t in loaded.values()}.values())  # a ticket named twice is judged once
+    if mixture and len(tickets) < 2:
+        raise UserError("--mixture needs at least 2 different tickets (--ticket A --ticket B)")
     task.check()
     zero = Constant(zero_ticket(policy.noise_shape).noise)
     reseeded = {"base": lambda r: Gaussian(seed + r), "zero": lambda r: zero}

@@ -15,6 +15,7 @@ Bound to 127.0.0.1 by default; any other interface needs a token, sent as
 from __future__ import annotations
 
 import json
+import socket
 import tempfile
 from importlib.resources import files
 from pathlib import Path
@@ -78,10 +79,24 @@ def serve(folder: str | Path, host: str = "127.0.0.1", port: int = 8765, token: 
 
     if host not in LOCAL_HOSTS and not token:
         raise UserError(f"binding to {host} exposes the session to the network: pass --token")
+    if not 0 < port < 65536:
+        raise UserError(f"--port must be in 1..65535, got {port}")
     app = make_app(folder, token)
+    _check_free(host, port)
     print(f"Session {folder}: operator page at http://{host}:{port}/"
           + (f"?token={token}" if token else ""), flush=True)
     uvicorn.run(app, host=host, port=port, log_level="warning")
+
+
+def _check_free(host: str, port: int) -> None:
+    """UserError if nothing can listen on host:port (another server there, an unknown host)."""
+    try:
+        family = socket.getaddrinfo(host, port)[0][0]
+        with socket.socket(family) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn does
+            probe.bind((host, port))
+    except OSError as e:
+        raise UserError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
 
 
 def _json(raw: bytes):

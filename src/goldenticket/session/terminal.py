@@ -14,7 +14,10 @@ def score_in_terminal(session: Session, read: Callable[[str], str] = input) -> i
     """Ask for each due episode's outcome until the session is complete or the operator quits."""
     print(HELP)
     while (status := session.status()) and (due := session.next()) is not None:
-        answer = read(f"[{status['scored']}/{status['total']}] episode {due.episode}: ").strip()
+        try:
+            answer = read(f"[{status['scored']}/{status['total']}] episode {due.episode}: ").strip()
+        except EOFError:  # input closed: stop as with q
+            answer = "q"
         key, _, note = answer.partition(" ")
         if key.lower() in ("s", "f"):
             try:
