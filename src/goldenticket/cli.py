@@ -13,6 +13,7 @@ from pathlib import Path
 
 from goldenticket import __version__
 from goldenticket.errors import UserError
+from goldenticket.ticket_search.optimizers import OPTIMIZERS
 
 DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
 POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder written by `train` " \
@@ -94,9 +95,9 @@ def _search_parser(sub) -> None:
     search = sub.add_parser("search", help="search golden tickets for a policy on a task")
     search.add_argument("--policy", required=True, help=POLICY_HELP)
     search.add_argument("--task", required=True, help=TASK_HELP)
-    search.add_argument("--method", default="cem-racing", choices=["rs", "cem", "zos", "cem-racing"],
-                        help="random search, cross-entropy method, zeroth-order search, or CEM with "
-                             "sequential-halving racing")
+    search.add_argument("--method", default="cem-racing", choices=list(OPTIMIZERS),
+                        help="random search, cross-entropy method, zeroth-order search, CEM with "
+                             "sequential-halving racing, or CMA-ES (the cma package)")
     search.add_argument("--budget", type=int, required=True, help="search episodes to spend")
     search.add_argument("--search-seeds", type=int, default=20, help="initial states to search on")
     search.add_argument("--heldout", type=int, default=200,

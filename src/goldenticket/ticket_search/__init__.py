@@ -8,6 +8,7 @@ from goldenticket.ticket_search.driver import (
 )
 from goldenticket.ticket_search.optimizers import (
     CEM,
+    CMAES,
     OPTIMIZERS,
     CEMRacing,
     Optimizer,
@@ -20,6 +21,7 @@ from goldenticket.ticket_search.optimizers import (
 
 __all__ = [
     "CEM",
+    "CMAES",
     "OPTIMIZERS",
     "CEMRacing",
     "Candidate",

@@ -240,11 +240,63 @@ class CEMRacing(CEM):
             self._alive = np.sort(self._alive[_top_indices(scores[self._alive], keep)])
 
 
+class CMAES(_Base):
+    """CMA-ES (the `cma` package) over the flattened ticket, from mean 0 and step size
+    `sigma_init`; `population` tickets per ask, each on every search seed, scored by mean return.
+
+    `cma` draws from numpy's global random state. Each call into it runs with this optimizer's
+    own state (seeded from `rng`) swapped in, and the caller's global state swapped back after,
+    so runs stay reproducible and nobody else's draws move. `cma`'s own stopping rules are off
+    (binary success makes flat fitness common): it runs `iterations` times (None: until the
+    driver stops it).
+    """
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
+                 rng: np.random.Generator, *, population: int = 20, sigma_init: float = 1.0,
+                 iterations: int | None = None):
+        import cma
+
+        super().__init__(noise_shape, seeds, rng)
+        _require(population >= 2, f"population must be >= 2, got {population}")
+        _require(sigma_init > 0, f"sigma_init must be > 0, got {sigma_init}")
+        _check_iterations(iterations)
+        self.iterations, self.iteration = iterations, 0
+        self._numpy_state = np.random.RandomState(int(rng.integers(2**32))).get_state()
+        options = {"popsize": population, "seed": int(rng.integers(1, 2**31)), "verbose": -9,
+                   "tolflatfitness": math.inf, "tolfun": 0, "tolfunhist": 0, "tolx": 0,
+                   "tolstagnation": math.inf}
+        self._es = self._own_numpy(lambda: cma.CMAEvolutionStrategy(
+            np.zeros(math.prod(self.noise_shape)), sigma_init, options))
+        self._asked: list[np.ndarray] = []
+
+    def ask(self) -> list[Query]:
+        if self.iterations is not None and self.iteration >= self.iterations:
+            return []
+        self._asked = self._own_numpy(self._es.ask)
+        return self._queries(x.reshape(self.noise_shape) for x in self._asked)
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        losses = [-float(np.mean(r)) for r in returns]  # cma minimises
+        self._own_numpy(lambda: self._es.tell(self._asked, losses))
+        self.iteration += 1
+
+    def _own_numpy(self, call):
+        """`call()` with this optimizer's numpy global random state in place."""
+        theirs = np.random.get_state()
+        np.random.set_state(self._numpy_state)
+        try:
+            return call()
+        finally:
+            self._numpy_state = np.random.get_state()
+            np.random.set_state(theirs)
+
+
 OPTIMIZERS: dict[str, type] = {
     "rs": RandomSearch,
     "cem": CEM,
     "zos": ZerothOrder,
     "cem-racing": CEMRacing,
+    "cma-es": CMAES,
 }
 
 
