@@ -2,8 +2,8 @@
 
     python benchmarks/search_methods.py       # writes benchmarks/results/search_methods.{md,json,png}
 
-RS, CEM, ZOS and CEM+racing on two bundled policies, three search seeds each (20 tickets per
-RS batch or CEM generation, 10 ZOS candidates per step). At each checkpoint budget the search is
+RS, CEM, ZOS, CEM+racing and CMA-ES on two bundled policies, three search seeds each (20 tickets
+per RS batch, CEM or CMA-ES generation, 10 ZOS candidates per step). At each checkpoint budget the search is
 replayed from its seed with that budget (recorded episodes are read back, not re-run), and its
 best ticket (by search score) is rolled out on held-out seeds. Resumable: all episodes of one
 policy share a run store under `--runs`.
@@ -30,9 +30,9 @@ from goldenticket.workflow import query_evaluator
 HERE = Path(__file__).parent
 POLICIES = ("metaworld/reach-v3/ddim@8", "metaworld/pick-place-v3/flow")
 METHODS = {"rs": {"batch_size": 20}, "cem": {"population": 20}, "zos": {"candidates": 10},
-           "cem-racing": {"population": 20}}
+           "cem-racing": {"population": 20}, "cma-es": {"population": 20}}
 SEEDS = (0, 1, 2)
-CHECKPOINTS = (50, 100, 200, 400)  # search episodes
+CHECKPOINTS = (50, 100, 200, 400, 1000)  # search episodes
 SEARCH_SEEDS, HELDOUT = 10, 100
 
 
@@ -102,7 +102,7 @@ def plot(results: dict, path: Path) -> None:
 
     fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 4), sharey=True)
     for ax, (policy, r) in zip(np.atleast_1d(axes), results.items(), strict=True):
-        for m, style in zip(METHODS, ("-o", "--s", "-^", "-D"), strict=True):  # RS and CEM may coincide
+        for m, style in zip(METHODS, ("-o", "--s", "-^", "-D", ":v"), strict=True):  # RS and CEM may coincide
             runs = np.array(r[m])
             ax.plot(CHECKPOINTS, runs.mean(0), style, label=m)
             ax.fill_between(CHECKPOINTS, runs.min(0), runs.max(0), alpha=0.15)

@@ -243,3 +243,16 @@ def run_episode_on_the_robot(noise):
         server.kill()
     status = Session(tmp_path).status()
     assert status["scored"] == status["total"] == 10 and "verdict" in status
+
+
+def test_a_damaged_session_file_is_one_clear_error(tmp_path):
+    import sqlite3
+
+    (tmp_path / "session.sqlite").write_bytes(b"not a database at all" * 100)
+    with pytest.raises(UserError, match="cannot open the session"):
+        Session(tmp_path)
+    other = tmp_path / "other"
+    other.mkdir()
+    sqlite3.connect(other / "session.sqlite").execute("CREATE TABLE t (x)").connection.commit()
+    with pytest.raises(UserError, match="not a goldenticket session"):
+        Session(other)

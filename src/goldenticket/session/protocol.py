@@ -75,7 +75,10 @@ class Session:
         if not self.path.is_file():
             raise UserError(f"{folder}: no session here (create one with `goldenticket session new`)")
         self._con = _connect(self.path)
-        fields = json.loads(self._one("SELECT value FROM plan")[0])
+        try:
+            fields = json.loads(self._one("SELECT value FROM plan")[0])
+        except (sqlite3.DatabaseError, TypeError):
+            raise UserError(f"{self.path}: not a goldenticket session, or damaged") from None
         self.plan = Plan(**{**fields, "noise_shape": tuple(fields["noise_shape"])})
 
     @classmethod
