@@ -27,7 +27,7 @@ def search(policy, task, out: str | Path, **options) -> dict:
     """Search tickets and judge the best on held-out seeds into `out` (resumable); returns the
     summary (`summary.json`). `options`: the fields of `workflow.SearchConfig` (method, budget,
     seed, search_seeds, heldout, top_k, objective, stop_after_perfect, max_tickets, workers,
-    max_steps, success, backend, address)."""
+    max_steps, success, backend, address, subspace, front_objective)."""
     from goldenticket.workflow import SearchConfig, find_golden_tickets
 
     return find_golden_tickets(SearchConfig(policy, task, **options), Path(out))
@@ -37,7 +37,7 @@ def evaluate(policy, task, tickets: Sequence[str | Path] = (),
              seeds: Iterable[int] = range(1_000_000, 1_000_200), **options) -> dict[str, dict]:
     """Base, zero ticket and each ticket file on held-out `seeds`, with Wilson intervals and
     Holm-adjusted paired p-values; `options`: seed, workers, allow_transfer, max_steps, success,
-    backend ("local" or "ray"), address (a Ray cluster)."""
+    backend ("local" or "ray"), address (a Ray cluster), mixture, epsilon."""
     from goldenticket.workflow import evaluate_tickets
 
     return evaluate_tickets(policy, task, [Path(t) for t in tickets], list(seeds), **options)
