@@ -142,7 +142,7 @@ def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: Search
         ticket.metadata["front"] = front_metadata
         return str(ticket.save(out / "tickets" / f"{ticket.id}.safetensors"))
 
-    with progress_bar(evaluator, cfg.heldout * (len(scored) + 2), "Pareto front"):
+    with progress_bar(evaluator, None, "Pareto front"):  # its size is known only once found
         study = pareto_study(evaluator, scored, (cfg.objective, cfg.front_objective), max_steps=max_steps,
                              heldout=heldout, base=baselines[0], zero=baselines[1], save=save, out=out)
     write_atomic(out / "front.json", json.dumps(study, indent=2) + "\n")
@@ -190,7 +190,7 @@ def _open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
     return store
 
 
-def progress_bar(evaluator: Evaluator, total: int, desc: str) -> tqdm:
+def progress_bar(evaluator: Evaluator, total: int | None, desc: str) -> tqdm:
     """A tqdm bar that the evaluator advances as episodes finish (or are read back)."""
     bar = tqdm(total=total, desc=desc, unit="ep", dynamic_ncols=True)
     evaluator.on_done = bar.update
