@@ -100,3 +100,22 @@ def test_objective_combinations_are_checked(tmp_path, capsys):
     assert main([*base, "--objective", "success", "--objective", "speed", "--objective", "length"]) == 2
     errors = capsys.readouterr().err.splitlines()
     assert len(errors) == 2 and "two different" in errors[0] and "takes two" in errors[1]
+
+
+def test_validation_seeds_choose_among_the_searchs_best_on_states_of_their_own(tmp_path):
+    from goldenticket.store import RunStore
+
+    out = tmp_path / "validated"
+    assert main(["search", "--policy", POLICY, "--task", TASK, "--method", "rs", "--budget", "24",
+                 "--search-seeds", "3", "--heldout", "6", "--top-k", "1", "--max-steps", "40",
+                 "--workers", "1", "--validation-seeds", "4", "--out", str(out)]) == 0
+    with RunStore(out / "run.sqlite") as store:
+        rows = store.episodes(seed_set="validation")
+    by_ticket: dict[str, list[bool]] = {}
+    for row in rows:
+        by_ticket.setdefault(row.ticket_id, []).append(row.success)
+    assert len(by_ticket) == 3 and all(len(v) == 4 for v in by_ticket.values())
+    assert {r.seed for r in rows} == set(range(3_000_000, 3_000_004))
+    best = json.loads((out / "summary.json").read_text())["best"]
+    assert best["validation_score"] == max(float(np.mean(v)) for v in by_ticket.values())
+    assert best["validation_score"] == float(np.mean(by_ticket[best["ticket_id"]]))

@@ -103,6 +103,9 @@ def _search_parser(sub) -> None:
     search.add_argument("--heldout", type=int, default=200,
                         help="held-out initial states to judge base, zero ticket and top tickets on")
     search.add_argument("--top-k", type=int, default=5, help="best search tickets judged on held-out states")
+    search.add_argument("--validation-seeds", type=int, default=0,
+                        help="if > 0: run the 3 x top-k best search tickets on this many validation "
+                             "states and judge the top-k of those on held-out states")
     search.add_argument("--max-tickets", type=int, default=None,
                         help="stop after this many distinct tickets (default: no cap)")
     search.add_argument("--stop-after-perfect", type=int, default=3,
@@ -274,7 +277,7 @@ def _search(args) -> int:
                        args.search_seeds, args.heldout, args.top_k, objectives[0],
                        args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
                        args.success, args.backend, args.address, args.subspace,
-                       objectives[1] if len(objectives) == 2 else None)
+                       objectives[1] if len(objectives) == 2 else None, args.validation_seeds)
     return _run_search(cfg, args.out)
 
 

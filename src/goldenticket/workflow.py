@@ -53,6 +53,7 @@ class SearchConfig:
     address: str | None = None  # the Ray cluster (None: a local Ray instance)
     subspace: str = "full"  # or "tiled", "channels:I,J" (ticket_search.subspace)
     front_objective: str | None = None  # a second objective: also find the Pareto front (studies.pareto)
+    validation_seeds: int = 0  # > 0: pick the top_k among 3 x top_k search tickets on these seeds
 
     def check(self) -> None:
         """Every option, before any episode runs."""
@@ -61,6 +62,8 @@ class SearchConfig:
                             f"got {self.stop_after_perfect}")
         if self.seed < 0:
             raise UserError(f"--seed must be >= 0, got {self.seed}")
+        if self.validation_seeds < 0:
+            raise UserError(f"--validation-seeds must be >= 0, got {self.validation_seeds}")
         for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets", "max_steps"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise UserError(f"--{name.replace('_', '-')} must be > 0, got {getattr(self, name)}")
@@ -105,8 +108,8 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
                                 budget=cfg.budget, stop_after_perfect=cfg.stop_after_perfect,
                                 max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
-        top = result.top(cfg.top_k, min_episodes=len(optimizer.seeds)) or result.top(cfg.top_k)
-        tickets = [_ticket(cfg, names, result, c, search_seeds, expand) for c in top]
+        tickets = _select(cfg, evaluator, [_ticket(cfg, names, result, c, search_seeds, expand)
+                                           for c in _top(result, cfg, len(optimizer.seeds))])
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
@@ -124,6 +127,28 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
                out / "search.png", f"{cfg.method} search: {title}")
     return summary
+
+
+def _top(result: SearchResult, cfg: SearchConfig, seeds: int) -> list:
+    """The best search candidates: top_k, or 3 x top_k to choose from on validation seeds."""
+    k = cfg.top_k * (3 if cfg.validation_seeds else 1)
+    return result.top(k, min_episodes=seeds) or result.top(k)
+
+
+def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket]) -> list[Ticket]:
+    """`tickets` as ranked by search, or, with validation seeds, the top_k of them by mean return
+    on those seeds (ties: search rank): a selection on states neither the search nor the
+    held-out verdict uses."""
+    if not cfg.validation_seeds:
+        return tickets
+    seeds = seeds_in("validation", cfg.validation_seeds)
+    with progress_bar(evaluator, len(seeds) * len(tickets), "validation: search's best tickets"):
+        runs = evaluator.run([(t.id, Constant(t.noise), seeds) for t in tickets])
+    scores = [float(np.mean([r.ret for r in rs])) for rs in runs]
+    for ticket, score in zip(tickets, scores, strict=True):
+        ticket.metadata |= {"validation_score": score, "validation_seeds": [seeds[0], seeds[-1]]}
+    ranked = sorted(range(len(tickets)), key=lambda i: -scores[i])  # stable: ties keep search rank
+    return [tickets[i] for i in ranked[: cfg.top_k]]
 
 
 def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: SearchResult, seeds: tuple,
@@ -230,8 +255,9 @@ def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path,
     for t in ranked:
         t.metadata["heldout"] = judged[t.id].to_dict() | {"seeds": span}
         path = t.save(out / "tickets" / f"{t.id}.safetensors")
-        entries.append(judged[t.id].to_dict() | {"ticket_id": t.id, "ticket_path": str(path),
-                                                 "search_score": t.metadata["search_score"]})
+        validation = {k: t.metadata[k] for k in ("validation_score",) if k in t.metadata}
+        entries.append(judged[t.id].to_dict() | validation | {"ticket_id": t.id, "ticket_path": str(path),
+                                                              "search_score": t.metadata["search_score"]})
     return entries
 
 

@@ -16,6 +16,7 @@ SEED_SETS: dict[str, range] = {
     "search": range(0, 1_000_000),
     "heldout": range(1_000_000, 2_000_000),
     "train": range(2_000_000, 3_000_000),
+    "validation": range(3_000_000, 4_000_000),  # selection among search tickets (--validation-seeds)
 }
 
 
