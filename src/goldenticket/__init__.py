@@ -27,7 +27,7 @@ def search(policy, task, out: str | Path, **options) -> dict:
     """Search tickets and judge the best on held-out seeds into `out` (resumable); returns the
     summary (`summary.json`). `options`: the fields of `workflow.SearchConfig` (method, budget,
     seed, search_seeds, heldout, top_k, objective, stop_after_perfect, max_tickets, workers,
-    max_steps, success, backend, address, subspace, front_objective)."""
+    max_steps, success, backend, address, subspace, front_objective, validation_seeds)."""
     from goldenticket.workflow import SearchConfig, find_golden_tickets
 
     return find_golden_tickets(SearchConfig(policy, task, **options), Path(out))
