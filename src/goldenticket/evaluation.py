@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 from goldenticket.noise import Gaussian, NoiseSource
 from goldenticket.rollout import Engine, Episode, EpisodeResult
@@ -59,10 +60,17 @@ class Judged:
     """One noise source's held-out outcome, with its tests against the base and zero ticket."""
 
     label: str
-    rate: Rate
-    successes: list[bool] = field(repr=False)
+    results: list[EpisodeResult] = field(repr=False)  # per held-out seed, in seed order
     p_value: float | None = None  # one-sided exact paired test vs base; None for the base
     p_vs_zero: float | None = None  # the same test vs the zero ticket; None for base and zero
+
+    @property
+    def successes(self) -> list[bool]:
+        return [r.success for r in self.results]
+
+    @cached_property
+    def rate(self) -> Rate:
+        return Rate.of(self.successes)
 
     @property
     def golden(self) -> bool:
@@ -84,11 +92,10 @@ def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence
     and, when a source is labelled "zero", every other source also against the zero ticket."""
     jobs = [("base", base or Gaussian(), seeds)] + [(k, s, seeds) for k, s in sources.items()]
     outcomes = evaluator.run(jobs)
-    base_succ = [r.success for r in outcomes[0]]
-    judged = {"base": Judged("base", Rate.of(base_succ), base_succ)}
+    judged = {"base": Judged("base", outcomes[0])}
     for (label, _, _), results in zip(jobs[1:], outcomes[1:], strict=True):
-        succ = [r.success for r in results]
-        judged[label] = Judged(label, Rate.of(succ), succ, paired_exact_test(succ, base_succ))
+        judged[label] = Judged(label, results)
+        judged[label].p_value = paired_exact_test(judged[label].successes, judged["base"].successes)
     if "zero" in judged:
         for label in set(sources) - {"zero"}:
             judged[label].p_vs_zero = paired_exact_test(judged[label].successes,

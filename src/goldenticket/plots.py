@@ -79,7 +79,6 @@ def front_png(study: dict, path: Path) -> Path:
     search.set(title="search seeds: every ticket (front in gold)", xlabel=x_name, ylabel=y_name)
     heldout.set(title=f"held-out seeds {seeds[0]}..{seeds[1]}: front, base, zero", xlabel=x_name,
                 ylabel=y_name)
-    fig.tight_layout()
     return _save(fig, path)
 
 

@@ -56,9 +56,8 @@ def pareto_study(evaluator: Evaluator, scored: dict[str, tuple[NoiseSource, Cand
     arms = {"base": base, "zero": zero} | {label: scored[label][0] for label in front}
     judged = judge(evaluator, {k: v for k, v in arms.items() if k != "base"}, heldout, base)
     adjust_for_multiplicity(judged, front)
-    runs = evaluator.run([(label, source, heldout) for label, source in arms.items()])  # read back
-    rows = {label: judged[label].to_dict() | {"scores": _scores(objectives, r, max_steps)}
-            for label, r in zip(arms, runs, strict=True)}
+    rows = {label: judged[label].to_dict() | {"scores": _scores(objectives, judged[label].results, max_steps)}
+            for label in arms}
     for label in front:
         rows[label]["ticket_path"] = save(scored[label][1], {"objectives": list(objectives),
                                                              "heldout": dict(rows[label])})

@@ -60,24 +60,25 @@ class MetaWorldEnv:
 
 
 class _Host:
-    """One Meta-World env lent to several `MetaWorldEnv`s in turn."""
+    """One Meta-World env lent to several `MetaWorldEnv`s in turn (`shared`), or to one."""
 
     def __init__(self, env, shared: bool = False):
-        self.env, self.shared, self.borrower = env, shared, None
-        self._attributes = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in vars(env).items()}
-        self._model_arrays = {name: getattr(env.model, name).copy() for name in SHARED_MODEL_WRITES}
+        self.env, self.borrower = env, None
+        self._attributes = _copied(vars(env)) if shared else None  # as constructed, before any reset
+        self._model_arrays = {name: getattr(env.model, name).copy() for name in SHARED_MODEL_WRITES} \
+            if shared else {}
 
     def fresh_attributes(self) -> dict:
-        """The env's attributes as constructed (own arrays, own MjData), or the env's own if unshared."""
-        if not self.shared:
+        """The env's attributes as constructed with their own arrays and MjData; unshared: the env's own."""
+        if self._attributes is None:
             return vars(self.env)
         import mujoco
 
-        fresh = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in self._attributes.items()}
-        return fresh | {"data": mujoco.MjData(self.env.model)}
+        return _copied(self._attributes) | {"data": mujoco.MjData(self.env.model)}
 
     def fresh_model_arrays(self) -> dict[str, np.ndarray]:
-        return {name: array.copy() for name, array in self._model_arrays.items()}
+        """Copies of the model arrays a borrower swaps in (none when unshared: nothing to swap)."""
+        return _copied(self._model_arrays)
 
     def lend(self, borrower: MetaWorldEnv):
         """The env, holding `borrower`'s attributes and model arrays (the previous borrower's saved)."""
@@ -91,6 +92,10 @@ class _Host:
                 np.copyto(getattr(model, name), saved)
             self.borrower = borrower
         return self.env
+
+
+def _copied(values: dict) -> dict:
+    return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in values.items()}
 
 
 @cache
