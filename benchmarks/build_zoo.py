@@ -1,6 +1,8 @@
-"""Train the MT10 policy zoo into the package: a flow and a DDIM policy per task.
+"""Train the MT10 policy zoo into the package: a flow and a DDIM policy per task, and one
+multi-task flow and DDIM policy for all ten (`metaworld/mt10/<kind>`, told the task by a one-hot).
 
     python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]
+    python benchmarks/build_zoo.py --multitask [--only flow]   # the two MT10 policies
     python benchmarks/build_zoo.py --remeasure   # re-measure every card's base and zero ticket
 
 Resumable: a policy folder that already has its card.json is kept. Each recipe says why the
@@ -16,7 +18,7 @@ import multiprocessing as mp
 
 from goldenticket.policies import BUNDLED_DIR, MLPPolicy
 from goldenticket.tasks import get_task
-from goldenticket.train import DemoStyle, build_policy, measure, write_card
+from goldenticket.train import DemoStyle, build_multitask_policy, build_policy, measure, write_card
 
 MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
         "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
@@ -34,15 +36,28 @@ RECIPES = {
 }
 TRAINED_STEPS = {"flow": 10, "ddim": 8}  # kind -> denoising steps it is trained with
 TRAIN_STEPS = 20_000
+MULTITASK_TRAIN_STEPS = 60_000  # ten tasks' data through one network
+
+
+def recipe(task: str) -> tuple[int, DemoStyle]:
+    """(demonstrations, style) of a task's policies, single- and multi-task alike."""
+    return RECIPES.get(task, (20, HABIT))
 
 
 def build(job: tuple[str, str]) -> str:
     task, kind = job
-    demos, style = RECIPES.get(task, (20, HABIT))
+    demos, style = recipe(task)
     card = build_policy(f"metaworld/{task}", kind, BUNDLED_DIR / "metaworld" / task / kind,
                         n_demos=demos, style=style, steps=TRAIN_STEPS, denoise_steps=TRAINED_STEPS[kind])
     base, zero = card["base"]["success_rate"], card["zero"]["success_rate"]
     return f"{card['policy']}: base {base:.1%}, zero {zero:.1%}"
+
+
+def build_multitask(kind: str) -> str:
+    name = f"metaworld/mt10/{kind}"
+    card = build_multitask_policy(name, {f"metaworld/{t}": recipe(t) for t in MT10}, kind, BUNDLED_DIR / name,
+                                  steps=MULTITASK_TRAIN_STEPS, denoise_steps=TRAINED_STEPS[kind])
+    return f"{name}: base {card['base']['success_rate']:.1%}, zero {card['zero']['success_rate']:.1%}"
 
 
 def remeasure(tasks: tuple[str, ...], workers: int) -> None:
@@ -60,17 +75,24 @@ def remeasure(tasks: tuple[str, ...], workers: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=2, help="policies trained at once (1 core each)")
-    parser.add_argument("--only", nargs="*", choices=MT10, default=MT10)
+    parser.add_argument("--only", nargs="*", choices=[*MT10, *TRAINED_STEPS], default=None,
+                        help="tasks (or, with --multitask, kinds) to build")
+    parser.add_argument("--multitask", action="store_true", help="build the MT10 multi-task policies")
     parser.add_argument("--remeasure", action="store_true",
                         help="re-measure the cards of the bundled policies instead of training")
     args = parser.parse_args()
-    if args.remeasure:
-        return remeasure(args.only, args.jobs)
-    todo = [(t, k) for t in args.only for k in TRAINED_STEPS
-            if not (BUNDLED_DIR / "metaworld" / t / k / "card.json").is_file()]
+    if args.multitask:
+        todo, run = [k for k in args.only or TRAINED_STEPS
+                     if not (BUNDLED_DIR / "metaworld/mt10" / k / "card.json").is_file()], build_multitask
+    else:
+        tasks = args.only or MT10
+        if args.remeasure:
+            return remeasure(tasks, args.jobs)
+        todo, run = [(t, k) for t in tasks for k in TRAINED_STEPS
+                     if not (BUNDLED_DIR / "metaworld" / t / k / "card.json").is_file()], build
     print(f"{len(todo)} policies to train", flush=True)
     with mp.get_context("spawn").Pool(args.jobs) as pool:
-        for line in pool.imap_unordered(build, todo):
+        for line in pool.imap_unordered(run, todo):
             print(line, flush=True)
 
 

@@ -10,9 +10,9 @@ POLICY, TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
 
 
 class CountingEngine(Engine):
-    def evaluate(self, episodes, on_shard=None):
+    def evaluate(self, episodes, on_shard=None, task=None):
         self.asked = getattr(self, "asked", 0) + len(episodes)
-        return super().evaluate(episodes, on_shard)
+        return super().evaluate(episodes, on_shard, task)
 
 
 def test_resume_reads_finished_episodes_back_instead_of_rerunning(tmp_path):

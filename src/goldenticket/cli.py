@@ -23,8 +23,8 @@ WORKERS_HELP = "worker processes (results do not depend on it)"
 MAX_STEPS_HELP = "episode step limit (default: the task's, 150 for Meta-World)"
 SUCCESS_HELP = "Gymnasium tasks: package.module:function(obs, info) -> bool deciding success " \
                "(default: info['success'] or info['is_success'])"
-RESUME = dict.fromkeys(("demo", "search"), " (finished episodes are kept in --out: rerun the same "
-                                           "command to resume)")
+RESUME = dict.fromkeys(("demo", "search", "transfer"),
+                       " (finished episodes are kept in --out: rerun the same command to resume)")
 
 
 class Interrupted(BaseException):
@@ -91,17 +91,38 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
                    help="Ray cluster address, e.g. ray://head:10001 (default: start a local Ray instance)")
 
 
+def _search_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--method", default="cem-racing", choices=list(OPTIMIZERS),
+                   help="random search, cross-entropy method, zeroth-order search, CEM with "
+                        "sequential-halving racing, or CMA-ES (the cma package)")
+    p.add_argument("--budget", type=int, required=True, help="search episodes to spend (per search)")
+    p.add_argument("--search-seeds", type=int, default=20, help="initial states to search on (per task)")
+    p.add_argument("--heldout", type=int, default=200,
+                   help="held-out initial states (per task) to judge base, zero ticket and tickets on")
+
+
+def _transfer_parser(sub) -> None:
+    tr = sub.add_parser("transfer", help="one ticket per task of a multi-task policy, each judged on every "
+                                         "task: the transfer matrix and the smallest set that covers them")
+    tr.add_argument("--policy", required=True, help=POLICY_HELP)
+    tr.add_argument("--task", required=True, action="append", help="task name; repeat (at least two)")
+    tr.add_argument("--ticket", action="append", default=[],
+                    help="take these tickets (files or bundled ids) instead of searching one per task")
+    _search_options(tr)
+    tr.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
+    _run_args(tr)
+
+
 def _search_parser(sub) -> None:
     search = sub.add_parser("search", help="search golden tickets for a policy on a task")
     search.add_argument("--policy", required=True, help=POLICY_HELP)
-    search.add_argument("--task", required=True, help=TASK_HELP)
-    search.add_argument("--method", default="cem-racing", choices=list(OPTIMIZERS),
-                        help="random search, cross-entropy method, zeroth-order search, CEM with "
-                             "sequential-halving racing, or CMA-ES (the cma package)")
-    search.add_argument("--budget", type=int, required=True, help="search episodes to spend")
-    search.add_argument("--search-seeds", type=int, default=20, help="initial states to search on")
-    search.add_argument("--heldout", type=int, default=200,
-                        help="held-out initial states to judge base, zero ticket and top tickets on")
+    search.add_argument("--task", required=True, action="append",
+                        help=TASK_HELP + "; repeat for one ticket over several tasks of a multi-task "
+                                         "policy (task-averaged success, judged per task)")
+    _search_options(search)
+    search.add_argument("--no-regression", action="store_true",
+                        help="several --task: never pick a ticket significantly worse than the base on "
+                             "a task")
     search.add_argument("--top-k", type=int, default=5, help="best search tickets judged on held-out states")
     search.add_argument("--validation-seeds", type=int, default=0,
                         help="if > 0: run the 3 x top-k best search tickets on this many validation "
@@ -177,6 +198,7 @@ def _parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help=f"search and judge a golden ticket for the bundled {DEMO_POLICY}")
     _run_args(demo)
     _search_parser(sub)
+    _transfer_parser(sub)
     _evaluate_parser(sub)
     _train_parser(sub)
     sub.add_parser("policies", help="list bundled policies with their measured success").add_argument(
@@ -273,12 +295,50 @@ def _search(args) -> int:
     objectives = args.objective or ["success"]
     if len(objectives) > 2:
         raise UserError(f"--objective given {len(objectives)} times; a Pareto front takes two")
-    cfg = SearchConfig(args.policy, args.task, args.method, args.budget, args.seed,
+    cfg = SearchConfig(args.policy, _tasks(args.task), args.method, args.budget, args.seed,
                        args.search_seeds, args.heldout, args.top_k, objectives[0],
                        args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
                        args.success, args.backend, args.address, args.subspace,
-                       objectives[1] if len(objectives) == 2 else None, args.validation_seeds)
+                       objectives[1] if len(objectives) == 2 else None, args.validation_seeds,
+                       args.no_regression)
+    if isinstance(cfg.task, tuple):
+        return _run_multitask_search(cfg, args.out)
     return _run_search(cfg, args.out)
+
+
+def _tasks(names: list[str]) -> str | tuple[str, ...]:
+    """One --task: its name; several: the tuple of names (a multi-task run)."""
+    return names[0] if len(names) == 1 else tuple(names)
+
+
+def _run_multitask_search(cfg, out: Path) -> int:
+    from goldenticket.multitask import find_multitask_tickets
+    from goldenticket.report import multitask_text
+
+    start = time.perf_counter()
+    summary = find_multitask_tickets(cfg, out)
+    print(multitask_text(summary))
+    print(f"Tickets saved in {out / 'tickets'}. Wrote {out / 'summary.json'} and verdict.png in "
+          f"{time.perf_counter() - start:.0f} s.")
+    return 0
+
+
+def _transfer(args) -> int:
+    from goldenticket.multitask import transfer
+    from goldenticket.report import transfer_text
+    from goldenticket.workflow import SearchConfig
+
+    tasks = _tasks(args.task)
+    if not isinstance(tasks, tuple):
+        raise UserError("transfer needs at least two --task")
+    start = time.perf_counter()
+    cfg = SearchConfig(args.policy, tasks, args.method, args.budget, args.seed, args.search_seeds,
+                       args.heldout, workers=args.workers, max_steps=args.max_steps, backend=args.backend,
+                       address=args.address)
+    print(transfer_text(transfer(cfg, args.out, args.ticket)))
+    print(f"Wrote {args.out / 'transfer.json'}, transfer.csv and transfer.png in "
+          f"{time.perf_counter() - start:.0f} s.")
+    return 0
 
 
 def _run_search(cfg, out: Path) -> int:
@@ -415,7 +475,7 @@ def _session(args) -> int:
     return score_in_terminal(Session(args.folder))
 
 
-COMMANDS = {"demo": _demo, "search": _search, "evaluate": _evaluate, "train": _train,
+COMMANDS = {"demo": _demo, "search": _search, "transfer": _transfer, "evaluate": _evaluate, "train": _train,
             "policies": _policies, "tickets": _tickets, "session": _session}
 
 if __name__ == "__main__":

@@ -27,9 +27,10 @@ class Evaluator:
                  on_done: Callable[[int], None] | None = None):
         self.engine, self.store, self.on_done = engine, store, on_done
 
-    def run(self, jobs: Sequence[Job]) -> list[list[EpisodeResult]]:
-        """Results per job, in seed order; new episodes of all jobs run in one engine call."""
-        task = self.engine.task.name
+    def run(self, jobs: Sequence[Job], task: str | None = None) -> list[list[EpisodeResult]]:
+        """Results per job, in seed order, on `task` (default: the engine's first); new episodes of
+        all jobs run in one engine call."""
+        task = task or self.engine.task.name
         known = {}
         if self.store is not None:
             for label in {label for label, _, _ in jobs}:
@@ -51,7 +52,7 @@ class Evaluator:
 
         if self.on_done:  # episodes read back from the store count as done
             self.on_done(sum(len(seeds) for _, _, seeds in jobs) - len(todo))
-        self.engine.evaluate([ep for _, ep in todo], keep)
+        self.engine.evaluate([ep for _, ep in todo], keep, task)
         return [[known[label, s] for s in seeds] for label, _, seeds in jobs]
 
 
@@ -87,20 +88,40 @@ class Judged:
 
 
 def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence[int],
-          base: NoiseSource | None = None) -> dict[str, Judged]:
-    """The base policy and each source on the same held-out seeds, each tested against base
-    and, when a source is labelled "zero", every other source also against the zero ticket."""
+          base: NoiseSource | None = None, task: str | None = None) -> dict[str, Judged]:
+    """The base policy and each source on the same held-out seeds (of `task`, default the
+    engine's first), each tested against base and, when a source is labelled "zero", every other
+    source also against the zero ticket."""
     jobs = [("base", base or Gaussian(), seeds)] + [(k, s, seeds) for k, s in sources.items()]
-    outcomes = evaluator.run(jobs)
-    judged = {"base": Judged("base", outcomes[0])}
-    for (label, _, _), results in zip(jobs[1:], outcomes[1:], strict=True):
-        judged[label] = Judged(label, results)
+    return judged_arms({label: results for (label, _, _), results in zip(jobs, evaluator.run(jobs, task),
+                                                                      strict=True)})
+
+
+def judged_arms(outcomes: dict[str, list[EpisodeResult]]) -> dict[str, Judged]:
+    """Each arm's paired episodes (keyed "base", "zero", then tickets) judged: p-values vs base,
+    and vs zero where a "zero" arm exists."""
+    judged = {label: Judged(label, results) for label, results in outcomes.items()}
+    for label in set(judged) - {"base"}:
         judged[label].p_value = paired_exact_test(judged[label].successes, judged["base"].successes)
     if "zero" in judged:
-        for label in set(sources) - {"zero"}:
+        for label in set(judged) - {"base", "zero"}:
             judged[label].p_vs_zero = paired_exact_test(judged[label].successes,
                                                         judged["zero"].successes)
     return judged
+
+
+def pooled(per_task: dict[str, dict[str, Judged]]) -> dict[str, Judged]:
+    """Arms judged on every task's episodes together (equal seeds per task: the task average)."""
+    labels = next(iter(per_task.values()))
+    return judged_arms({label: [r for judged in per_task.values() for r in judged[label].results]
+                   for label in labels})
+
+
+def regressions(per_task: dict[str, dict[str, Judged]], label: str) -> list[str]:
+    """Tasks on which arm `label` is significantly worse than the base (one-sided exact paired
+    test, p < ALPHA, not adjusted: a stricter guard)."""
+    return [task for task, judged in per_task.items()
+            if paired_exact_test(judged["base"].successes, judged[label].successes) < ALPHA]
 
 
 def adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) -> None:

@@ -6,6 +6,7 @@ import io
 from pathlib import Path
 
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 from matplotlib.ticker import PercentFormatter
 
 from goldenticket.files import write_atomic
@@ -80,6 +81,65 @@ def front_png(study: dict, path: Path) -> Path:
     heldout.set(title=f"held-out seeds {seeds[0]}..{seeds[1]}: front, base, zero", xlabel=x_name,
                 ylabel=y_name)
     return _save(fig, path)
+
+
+def tasks_png(summary: dict, path: Path, title: str) -> Path:
+    """Per task and on average: base, zero ticket and the best ticket (the top one by average
+    success when no ticket qualified), with 95% Wilson intervals; tasks it regresses on in red."""
+    ticket = summary["best"] or max(summary["tickets"], key=lambda t: summary["average"][t]["success_rate"])
+    rows = {short_task(name): arms for name, arms in summary["tasks"].items()}
+    rows["average"] = summary["average"]
+    fig = Figure(figsize=(8, 1.2 + 0.75 * len(rows)))
+    ax = fig.subplots()
+    arms = (("base", "base", COLORS["base"]), ("zero", "zero ticket", COLORS["zero ticket"]),
+            (ticket, f"ticket {ticket}", COLORS["golden"]))
+    for y, arms_of_task in enumerate(rows.values()):
+        for offset, (label, legend, color) in zip((-0.22, 0, 0.22), arms, strict=True):
+            r = arms_of_task[label]
+            ax.errorbar(r["success_rate"], y + offset, xerr=[[r["success_rate"] - r["ci_low"]],
+                                                             [r["ci_high"] - r["success_rate"]]],
+                        fmt="o", capsize=3, color=color, label=legend if y == 0 else None)
+    regressing = {short_task(t) for t in summary["regressions"][ticket]}
+    ax.set_yticks(range(len(rows)), list(rows))
+    for label in ax.get_yticklabels():
+        if label.get_text() in regressing:
+            label.set_color("tab:red")
+    ax.invert_yaxis()
+    ax.set(xlim=(0, 1.02), title=title, xlabel="held-out success, 95% Wilson interval (red: the ticket "
+           "is significantly worse than the base there)")
+    ax.xaxis.set_major_formatter(PercentFormatter(1.0))
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize="small")
+    return _save(fig, path)
+
+
+def transfer_png(study: dict, path: Path) -> Path:
+    """Ticket x task heatmap of the gain over each task's base; * marks a significant gain
+    (Holm-adjusted p < 0.05), a box the cover's choice for each task."""
+    tickets, tasks = list(study["tickets"]), study["tasks"]
+    gains = [[study["cells"][t][task]["gain"] for task in tasks] for t in tickets]
+    fig = Figure(figsize=(5.5 + 0.8 * len(tasks), 2.2 + 0.45 * len(tickets)))
+    ax = fig.subplots()
+    limit = max(0.05, max(abs(g) for row in gains for g in row))
+    image = ax.imshow(gains, cmap="RdBu", vmin=-limit, vmax=limit, aspect="auto")
+    for i, ticket in enumerate(tickets):
+        for j, task in enumerate(tasks):
+            cell = study["cells"][ticket][task]
+            ax.text(j, i, f"{100 * cell['gain']:+.0f}{'*' if cell['significant'] else ''}", ha="center",
+                    va="center", fontsize="small",
+                    color="white" if abs(cell["gain"]) > limit / 2 else "black")
+            if study["cover"]["table"][task]["use"] == ticket:
+                ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, linewidth=2, color="goldenrod"))
+    ax.set_xticks(range(len(tasks)), [short_task(t) for t in tasks], rotation=40, ha="right")
+    ax.set_yticks(range(len(tickets)), [f"{t} ({short_task(study['tickets'][t])})" for t in tickets])
+    ax.set(title="gain over base, points (* significant; box: the cover's pick)",
+           xlabel="evaluated on", ylabel="ticket (found on)")
+    fig.colorbar(image, ax=ax, format=PercentFormatter(1.0))
+    return _save(fig, path)
+
+
+def short_task(name: str) -> str:
+    """`metaworld/pick-place-v3` -> `pick-place-v3`."""
+    return name.rsplit("/", 1)[-1]
 
 
 def _save(fig: Figure, path: Path) -> Path:

@@ -41,9 +41,16 @@ def rate_text(r: dict, width: int = 0) -> str:
 
 
 def policy_table(cards: list[dict]) -> str:
-    """One line per bundled policy: its base and zero-ticket held-out success."""
-    rows = [(c["policy"], str(c["demos"]), rate_text(c["base"], 6), rate_text(c["zero"], 6),
-             str(c["base"]["n"])) for c in cards]
+    """One line per bundled policy (a multi-task one: per task, then over all tasks): its base
+    and zero-ticket held-out success."""
+    rows = []
+    for c in cards:
+        for task, entry in c.get("tasks", {}).items():
+            rows.append((f"{c['policy']} on {_short(task)}", str(entry["demos"]), rate_text(entry["base"], 6),
+                         rate_text(entry["zero"], 6), str(entry["base"]["n"])))
+        label = f"{c['policy']} (all {len(c['tasks'])} tasks)" if "tasks" in c else c["policy"]
+        rows.append((label, str(c["demos"]), rate_text(c["base"], 6), rate_text(c["zero"], 6),
+                     str(c["base"]["n"])))
     return _columns(("policy", "demos", "base", "zero ticket", "n"), rows)
 
 
@@ -59,3 +66,58 @@ def ticket_table(tickets: list) -> str:
                      rate_text(fresh, 6) if fresh else "-"))
     return _columns(("policy", "ticket", "search", "held-out success", "p vs base", "seeds",
                      "fresh seeds"), rows)
+
+
+def _short(task: str) -> str:
+    return task.rsplit("/", 1)[-1]
+
+
+def multitask_text(summary: dict) -> str:
+    """Per task and on average: base, zero ticket and the best ticket (p-values vs base and zero),
+    each task the ticket regresses on flagged; then every ticket's average and regressions."""
+    best = summary["best"]
+    shown = best or summary["tickets"][0]
+    rows = []
+    for task, arms in [*summary["tasks"].items(), ("average", summary["average"])]:
+        t = arms[shown]
+        flag = "REGRESSES" if task in summary["regressions"][shown] else ""
+        rows.append((_short(task), rate_text(arms["base"], 6), rate_text(arms["zero"], 6), rate_text(t, 6),
+                     f"{t['p_value']:.3g}", f"{t['p_vs_zero']:.3g}", flag))
+    table = _columns(("task", "base", "zero ticket", f"ticket {shown}", "p vs base", "p vs zero", ""), rows)
+    lines = [table, ""]
+    average = summary["average"]
+    if best is None:
+        lines.append("No ticket qualifies: with --no-regression, every ticket is significantly worse than "
+                     "the base on some task.")
+    else:
+        verdict = "golden on average" if average[best]["golden"] else "not significantly better on average"
+        lines.append(f"Best ticket {best}: {average[best]['success_rate']:.1%} averaged over "
+                     f"{len(summary['tasks'])} tasks vs base {average['base']['success_rate']:.1%} "
+                     f"(p = {average[best]['p_value']:.3g}, {verdict}).")
+    for ticket in summary["tickets"]:
+        worse = ", ".join(_short(t) for t in summary["regressions"][ticket]) or "none"
+        lines.append(f"  ticket {ticket}: average {average[ticket]['success_rate']:.1%}; "
+                     f"significantly worse than base on: {worse}")
+    return "\n".join(lines + [summary["p_value_note"] + " Regression: one-sided exact paired test, base "
+                              "better than the ticket on that task, p < 0.05 (not adjusted)."])
+
+
+def transfer_text(study: dict) -> str:
+    """The transfer matrix (gain over base in points, * significant) and the cover's switching table."""
+    tasks = study["tasks"]
+    header = ("ticket (found on)", *[_short(t) for t in tasks])
+    rows = [(f"{ticket} ({_short(found)})", *[f"{100 * study['cells'][ticket][t]['gain']:+.0f}"
+                                              f"{'*' if study['cells'][ticket][t]['significant'] else ''}"
+                                              for t in tasks])
+            for ticket, found in study["tickets"].items()]
+    cover = study["cover"]
+    switching = [(_short(task), row["use"], f"{row['success_rate']:.1%}",
+                  f"{study['baselines'][task]['base']['success_rate']:.1%}",
+                  "significant" if row["significant"] else "")
+                 for task, row in cover["table"].items()]
+    return "\n".join([
+        "Gain over each task's base (points) on the held-out seeds; * Holm-adjusted p < 0.05:",
+        _columns(header, rows), "",
+        f"Greedy cover: {len(cover['tickets'])} ticket(s) ({', '.join(cover['tickets']) or 'none'}); "
+        "the switching table:",
+        _columns(("task", "use", "success", "base", ""), switching)])

@@ -15,7 +15,7 @@ import torch
 from goldenticket.errors import UserError
 from goldenticket.factories import picklable
 from goldenticket.noise import NoiseSource
-from goldenticket.policies import NoisePolicy, load_policy, policy_label
+from goldenticket.policies import NoisePolicy, for_task, load_policy, policy_label
 from goldenticket.tasks import OBJECTIVES, Task
 
 
@@ -42,9 +42,9 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
 
     An env leaves the batch when it succeeds, says it is done, or reaches `task.max_steps`. Each episode's
     result depends only on its (source, seed), never on its batch slot. `record_actions` keeps
-    each episode's executed actions in its result.
+    each episode's executed actions in its result. A multi-task policy acts conditioned on `task`.
     """
-    n = len(episodes)
+    policy, n = for_task(policy, task.name), len(episodes)
     envs = [] if envs is None else envs
     envs += [task.make_env() for _ in range(n - len(envs))]
     start = time.perf_counter()
@@ -91,19 +91,20 @@ def checked_actions(policy: NoisePolicy, actions: np.ndarray, batch: int) -> np.
     return actions
 
 
-# --- process pool: each worker loads the policy and task once, then runs shards ---------------
+# --- process pool: each worker loads the policy and tasks once, then runs shards ---------------
 _worker: dict = {}
 
 
-def _init_worker(policy: str | NoisePolicy, task: Task, objective: str) -> None:
+def _init_worker(policy: str | NoisePolicy, tasks: dict[str, Task], objective: str) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle
     torch.set_num_threads(1)
-    _worker.update(policy=load_policy(policy), task=task, objective=objective, envs=[])
+    _worker.update(policy=load_policy(policy), tasks=tasks, objective=objective,
+                   envs={name: [] for name in tasks})
 
 
-def _run_shard(episodes: list[Episode]) -> list[EpisodeResult]:
-    w = _worker
-    return rollout(w["policy"], w["task"], episodes, w["objective"], w["envs"])
+def _run_shard(shard: tuple[str, list[Episode]]) -> list[EpisodeResult]:
+    (task, episodes), w = shard, _worker
+    return rollout(w["policy"], w["tasks"][task], episodes, w["objective"], w["envs"][task])
 
 
 def _local_pool(workers: int, initializer, initargs: tuple, address: None):
@@ -124,10 +125,11 @@ class Engine:
     or on Ray actors (`backend="ray"`, a local Ray instance or the cluster at `address`).
 
     Shards are fixed by episode order, never by timing, so every backend gives the same
-    results for the same episodes.
+    results for the same episodes. `task` is one task or several (a multi-task policy's): each
+    `evaluate` call names the task its episodes run on, the first by default.
     """
 
-    def __init__(self, policy: str | NoisePolicy, task: Task, *, objective: str = "success",
+    def __init__(self, policy: str | NoisePolicy, task: Task | Sequence[Task], *, objective: str = "success",
                  workers: int = 1, shard_size: int = 16, backend: str = "local", address: str | None = None,
                  loaded: NoisePolicy | None = None):
         """`policy` as workers rebuild it (a name, or the object pickled); `loaded`: the policy
@@ -142,21 +144,25 @@ class Engine:
             raise UserError(f"--workers must be between 1 and {most} (4 per CPU here), got {workers}")
         local = backend == "local" and workers == 1
         self.policy = (loaded or load_policy(policy)) if local else None
-        self.task, self.objective, self.shard_size = task, objective, shard_size
-        self._envs: list = []
+        self.tasks = {t.name: t for t in ([task] if hasattr(task, "make_env") else task)}
+        self.task = next(iter(self.tasks.values()))
+        self.objective, self.shard_size = objective, shard_size
+        self._envs: dict[str, list] = {name: [] for name in self.tasks}
         self._pool = None
         if not local:  # each worker rebuilds a named policy, or unpickles a policy object
-            picklable((policy, task), f"policy {policy_label(policy)!r} or task {task.name!r}")
-            self._pool = BACKENDS[backend](workers, _init_worker, (policy, task, objective), address)
+            picklable((policy, self.tasks), f"policy {policy_label(policy)!r} or task {self.task.name!r}")
+            self._pool = BACKENDS[backend](workers, _init_worker, (policy, self.tasks, objective), address)
 
     def evaluate(self, episodes: Sequence[Episode],
-                 on_shard: Callable[[int, list[EpisodeResult]], None] | None = None
-                 ) -> list[EpisodeResult]:
-        """Results in episode order; `on_shard(start, results)` as each shard finishes."""
+                 on_shard: Callable[[int, list[EpisodeResult]], None] | None = None,
+                 task: str | None = None) -> list[EpisodeResult]:
+        """Results in episode order, on `task` (a name; default the first task); `on_shard(start,
+        results)` as each shard finishes."""
+        task = task or self.task.name
         starts = range(0, len(episodes), self.shard_size)
-        shards = [list(episodes[i : i + self.shard_size]) for i in starts]
+        shards = [(task, list(episodes[i : i + self.shard_size])) for i in starts]
         if self._pool is None:
-            runs = (rollout(self.policy, self.task, s, self.objective, self._envs) for s in shards)
+            runs = (rollout(self.policy, self.tasks[t], s, self.objective, self._envs[t]) for t, s in shards)
         else:
             runs = self._pool.imap(_run_shard, shards)
         results: list[EpisodeResult] = []

@@ -54,8 +54,11 @@ class Rate:
     @classmethod
     def of(cls, successes: Sequence[bool]) -> Rate:
         """Summarise per-episode binary outcomes."""
-        n = len(successes)
-        k = sum(bool(s) for s in successes)
+        return cls.counted(sum(bool(s) for s in successes), len(successes))
+
+    @classmethod
+    def counted(cls, k: int, n: int) -> Rate:
+        """`k` successes in `n` episodes."""
         low, high = wilson_interval(k, n)
         return cls(successes=k, n=n, success_rate=k / n, ci_low=low, ci_high=high)
 

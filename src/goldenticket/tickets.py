@@ -58,12 +58,13 @@ class Ticket:
         return digest.hexdigest()[:12]
 
     def check_fits(self, fingerprint: str, task: str, where: str) -> None:
-        """UserError unless the ticket was found for this policy (fingerprint) and task; a ticket
-        without that metadata (made by hand) fits anything."""
+        """UserError unless the ticket was found for this policy (fingerprint) and task (one of
+        its `tasks` for a multi-task ticket); a ticket without that metadata (made by hand) fits
+        anything."""
         meta, found_for = self.metadata, []
         if meta.get("policy_fingerprint", fingerprint) != fingerprint:
             found_for.append(f"policy {meta.get('policy')} ({meta['policy_fingerprint']})")
-        if meta.get("task", task) != task:
+        if task not in meta.get("tasks", [meta.get("task", task)]):
             found_for.append(f"task {meta['task']}")
         if found_for:
             raise UserError(f"{where}: ticket {self.id} was found for {' and '.join(found_for)}, not "

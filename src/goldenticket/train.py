@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from tqdm import tqdm
 from goldenticket.errors import UserError
 from goldenticket.files import new_folder_beside, write_atomic
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
+from goldenticket.stats import Rate
 from goldenticket.tasks import MetaWorldTask, get_task, seeds_in
 
 
@@ -48,9 +50,21 @@ class DemoStyle:
 
 @dataclass
 class Demos:
-    obs: list[np.ndarray]  # per episode [T, obs_dim]
+    obs: list[np.ndarray]  # per episode [T, obs_dim], or [T, obs_dim + tasks] with a task one-hot
     actions: list[np.ndarray]  # per episode [T, action_dim]
     attempts: int
+
+    @classmethod
+    def of_tasks(cls, per_task: list[Demos]) -> Demos:
+        """One multi-task dataset: each episode's observations followed by its task's one-hot."""
+        merged = cls([], [], sum(d.attempts for d in per_task))
+        for index, demos in enumerate(per_task):
+            for obs, actions in zip(demos.obs, demos.actions, strict=True):
+                one_hot = np.zeros((len(obs), len(per_task)), np.float32)
+                one_hot[:, index] = 1
+                merged.obs.append(np.concatenate([obs, one_hot], axis=1))
+                merged.actions.append(actions)
+        return merged
 
 
 def collect_demos(task: MetaWorldTask, n: int, style: DemoStyle, seed: int = 0) -> Demos:
@@ -116,8 +130,9 @@ def train_policy(cfg: PolicyConfig, demos: Demos, *, steps: int = 20_000, batch:
     gen = torch.Generator().manual_seed(seed)
     obs_np, act_np = chunk_dataset(demos, cfg.horizon)
     model = Denoiser(cfg)
-    model.obs_mean.copy_(torch.as_tensor(obs_np.mean(0)))
-    model.obs_std.copy_(torch.as_tensor(obs_np.std(0) + 1e-3))
+    state = obs_np[:, : cfg.obs_dim]  # a task one-hot after it is not standardised
+    model.obs_mean.copy_(torch.as_tensor(state.mean(0)))
+    model.obs_std.copy_(torch.as_tensor(state.std(0) + 1e-3))
     obs = model.normalise_obs(torch.as_tensor(obs_np))
     act = model.normalise_actions(torch.as_tensor(act_np))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
@@ -165,8 +180,6 @@ def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: D
         raise UserError(f"--n-exec {n_exec} cannot exceed --horizon {horizon}")
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise UserError(f"--out {out} already exists; choose a new folder")
     seeds_in("heldout", heldout)  # a UserError now, not after training
     task = get_task(task_name)
     if not isinstance(task, MetaWorldTask):
@@ -174,15 +187,56 @@ def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: D
     name = f"{task_name}/{kind}"
     cfg = PolicyConfig(name, kind, task.obs_dim, task.action_dim, horizon, n_exec,
                        steps=denoise_steps)
-    partial = new_folder_beside(out)  # an OSError now if `out` cannot be written
-    try:
+
+    def fill(folder: Path) -> dict:
         demos = collect_demos(task, n_demos, style, seed)
         policy, losses = train_policy(cfg, demos, steps=steps, seed=seed)
-        policy.save(partial)
-        card = {"policy": name, "demos": n_demos, "demo_attempts": demos.attempts,
+        policy.save(folder)
+        return {"policy": name, "demos": n_demos, "demo_attempts": demos.attempts,
                 "style": asdict(style), "train_steps": steps, "seed": seed,
-                "loss_per_1k_steps": [round(x, 5) for x in losses]}
-        write_card(partial, card | measure(partial, task, heldout), cfg)
+                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measure(folder, task, heldout)
+
+    return _into_new_folder(out, fill, cfg)
+
+
+def build_multitask_policy(name: str, recipes: dict[str, tuple[int, DemoStyle]], kind: str, out: Path, *,
+                           steps: int, denoise_steps: int, hidden: int = 256, horizon: int = 8,
+                           n_exec: int = 4, seed: int = 0, heldout: int = 200, workers: int = 1) -> dict:
+    """One network for several Meta-World tasks, told which by a one-hot: trained on each task's
+    (n_demos, style) demonstrations, measured per task; written like `build_policy`."""
+    tasks = [get_task(t) for t in recipes]
+    if not all(isinstance(t, MetaWorldTask) for t in tasks):
+        raise UserError("a multi-task policy needs built-in Meta-World tasks (scripted experts)")
+    cfg = PolicyConfig(name, kind, tasks[0].obs_dim, tasks[0].action_dim, horizon, n_exec, hidden=hidden,
+                       steps=denoise_steps, tasks=list(recipes))
+
+    def fill(folder: Path) -> dict:
+        per_task = [collect_demos(t, n, style, seed) for t, (n, style) in zip(tasks, recipes.values(),
+                                                                            strict=True)]
+        policy, losses = train_policy(cfg, Demos.of_tasks(per_task), steps=steps, seed=seed)
+        policy.save(folder)
+        card = {"policy": name, "demos": sum(len(d.obs) for d in per_task), "train_steps": steps,
+                "seed": seed, "loss_per_1k_steps": [round(x, 5) for x in losses], "tasks": {}}
+        for task, demos, (n, style) in zip(tasks, per_task, recipes.values(), strict=True):
+            card["tasks"][task.name] = {"demos": n, "demo_attempts": demos.attempts, "style": asdict(style)
+                                        } | measure(folder, task, heldout, workers)
+        for arm in ("base", "zero"):  # over all tasks' episodes: the task average
+            rates = [entry[arm] for entry in card["tasks"].values()]
+            card[arm] = Rate.counted(sum(round(r["success_rate"] * r["n"]) for r in rates),
+                                     sum(r["n"] for r in rates)).to_dict()
+        return card
+
+    return _into_new_folder(out, fill, cfg)
+
+
+def _into_new_folder(out: Path, fill: Callable[[Path], dict], cfg: PolicyConfig) -> dict:
+    """`fill` a hidden folder beside `out` (it returns the card), write the card, then rename the
+    folder to `out`: a failed or interrupted build leaves no half-written policy."""
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise UserError(f"--out {out} already exists; choose a new folder")
+    partial = new_folder_beside(out)  # an OSError now if `out` cannot be written
+    try:
+        write_card(partial, fill(partial), cfg)
         if out.exists():
             out.rmdir()
         partial.rename(out)
@@ -223,32 +277,72 @@ def band_note(base_rate: float) -> str:
             " band with this recipe; shipped anyway.")
 
 
+def _rate(r: dict) -> str:
+    return f"{r['success_rate']:.1%} (95% Wilson [{r['ci_low']:.1%}, {r['ci_high']:.1%}], n={r['n']})"
+
+
 def model_card(card: dict, cfg: PolicyConfig) -> str:
     """A short human-readable model card from the measured numbers."""
-    def rate(r: dict) -> str:
-        return f"{r['success_rate']:.1%} (95% Wilson [{r['ci_low']:.1%}, {r['ci_high']:.1%}], n={r['n']})"
-
-    losses, style = card["loss_per_1k_steps"], DemoStyle(**card["style"])
+    if "tasks" in card:
+        return multitask_card(card, cfg)
+    style = DemoStyle(**card["style"])
     return f"""# {card['policy']}
 
-- **Model**: {cfg.kind} MLP denoiser, {cfg.layers} x {cfg.hidden} GELU; predicts {cfg.horizon}
-  actions, executes {cfg.n_exec} then replans; {cfg.steps} {'Euler' if cfg.kind == 'flow' else 'DDIM'} steps
-  (another count at load time: `{card['policy']}@N`).
+{_model_lines(card, cfg)}
 - **Data**: {card['demos']} successful scripted-expert demonstrations (of {card['demo_attempts']}
   attempts) on training seeds, disjoint from search and held-out seeds.
 - **Why it is imperfect**: few, noisy, multimodal demonstrations: {style.describe()}. The
   policy learns that spread of habits; fresh noise at each replan mixes them within one episode.
-- **Training**: {card['train_steps']} AdamW steps, batch 256, cosine learning rate, seed
-  {card['seed']}; mean loss over the first / last (up to) 1k steps: {losses[0]:.4f} / {losses[-1]:.4f}.
+{_training_line(card)}
 - **Held-out success** (first {card['base']['n']} held-out seeds):
-  - base policy (fresh Gaussian noise at every call): {rate(card['base'])}
-  - zero ticket (w = 0): {rate(card['zero'])}{band_note(card['base']['success_rate'])}
+  - base policy (fresh Gaussian noise at every call): {_rate(card['base'])}
+  - zero ticket (w = 0): {_rate(card['zero'])}{band_note(card['base']['success_rate'])}
 
 Rebuild: `goldenticket train --task {card['policy'].rsplit('/', 1)[0]} --kind {cfg.kind} \\
 --demos {card['demos']} --grasp-offset {card['style']['grasp_offset']} \\
 --goal-offset {style.goal_offset} --action-noise {style.action_noise} \\
 --steps {card['train_steps']} --seed {card['seed']} \\
 --horizon {cfg.horizon} --n-exec {cfg.n_exec} --denoise-steps {cfg.steps} --out DIR`
+{REBUILD_NOTE}"""
+
+
+def multitask_card(card: dict, cfg: PolicyConfig) -> str:
+    """The model card of a multi-task policy: demonstrations and held-out success per task."""
+    rows = "\n".join(f"| {task} | {t['demos']} of {t['demo_attempts']}: {DemoStyle(**t['style']).describe()} "
+                      f"| {_rate(t['base'])} | {_rate(t['zero'])} |" for task, t in card["tasks"].items())
+    return f"""# {card['policy']}
+
+{_model_lines(card, cfg)}
+- **Task conditioning**: one network for {len(cfg.tasks)} tasks; it sees the observation followed by
+  a one-hot over its tasks (in the order below). Tickets, search and evaluation name the task.
+- **Data**: {card['demos']} successful scripted-expert demonstrations on training seeds (disjoint
+  from search and held-out seeds), with each task's single-task recipe: few, noisy, multimodal.
+{_training_line(card)}
+- **Held-out success** per task (first {card['base']['n'] // len(cfg.tasks)} held-out seeds each); over all
+  tasks: base {_rate(card['base'])}, zero ticket {_rate(card['zero'])}.
+
+| task | demonstrations (kept of attempts): why imperfect | base policy | zero ticket |
+|---|---|---|---|
+{rows}
+
+Rebuild: `python benchmarks/build_zoo.py --multitask --only {cfg.kind}` (seed {card['seed']},
+{card['train_steps']} steps).
+{REBUILD_NOTE}"""
+
+
+def _model_lines(card: dict, cfg: PolicyConfig) -> str:
+    return f"""- **Model**: {cfg.kind} MLP denoiser, {cfg.layers} x {cfg.hidden} GELU; predicts {cfg.horizon}
+  actions, executes {cfg.n_exec} then replans; {cfg.steps} {'Euler' if cfg.kind == 'flow' else 'DDIM'} steps
+  (another count at load time: `{card['policy']}@N`)."""
+
+
+def _training_line(card: dict) -> str:
+    losses = card["loss_per_1k_steps"]
+    return f"""- **Training**: {card['train_steps']} AdamW steps, batch 256, cosine learning rate, seed
+  {card['seed']}; mean loss over the first / last (up to) 1k steps: {losses[0]:.4f} / {losses[-1]:.4f}."""
+
+
+REBUILD_NOTE = """\
 (training runs in float32: bit for bit on the same kind of CPU; on another CPU the weights, and so
 the fingerprint and the numbers, differ. Rollouts of these weights give the same episodes on any
 x86-64 CPU with AVX2 and FMA.)

@@ -36,7 +36,8 @@ class SearchConfig:
     """One search run; the same config and seed always give the same numbers."""
 
     policy: str | NoisePolicy  # a name or import string (see policies.load_policy), or the object
-    task: str | Callable  # a task name, or a gymnasium.Env factory or its import string
+    task: str | Callable | tuple[str, ...]  # a task name, a gymnasium.Env factory or its import
+    # string, or several task names (multi-task: `multitask.find_multitask_tickets`, `transfer`)
     method: str = "cem-racing"
     budget: int = 1500  # search episodes
     seed: int = 0
@@ -54,6 +55,7 @@ class SearchConfig:
     subspace: str = "full"  # or "tiled", "channels:I,J" (ticket_search.subspace)
     front_objective: str | None = None  # a second objective: also find the Pareto front (studies.pareto)
     validation_seeds: int = 0  # > 0: pick the top_k among 3 x top_k search tickets on these seeds
+    no_regression: bool = False  # multi-task: never call best a ticket significantly worse on a task
 
     def check(self) -> None:
         """Every option, before any episode runs."""
@@ -70,6 +72,13 @@ class SearchConfig:
         for objective in filter(None, (self.objective, self.front_objective)):
             if objective not in OBJECTIVES:
                 raise UserError(f"unknown objective {objective!r}; choose from {list(OBJECTIVES)}")
+        if isinstance(self.task, tuple):
+            for option, value in (("--validation-seeds", self.validation_seeds), ("--success", self.success),
+                                  ("--objective (a second)", self.front_objective)):
+                if value:
+                    raise UserError(f"{option} is for single-task runs; not with several --task")
+        elif self.no_regression:
+            raise UserError("--no-regression needs several --task (it guards every task's success)")
         if self.front_objective == self.objective:
             raise UserError(f"--objective {self.objective} twice: a Pareto front needs two different "
                             "objectives")
@@ -222,15 +231,27 @@ def progress_bar(evaluator: Evaluator, total: int | None, desc: str) -> tqdm:
     return bar
 
 
-def query_evaluator(evaluator: Evaluator, fingerprint: str, expand: Callable = lambda searched: searched):
+def query_evaluator(evaluator: Evaluator, fingerprint: str, expand: Callable = lambda searched: searched,
+                    where: Callable[[int], tuple[str | None, int]] = lambda key: (None, key)):
     """The search driver's evaluate(): each query's episodes, labelled by the ticket's id;
-    `expand` turns a searched array into the full ticket."""
+    `expand` turns a searched array into the full ticket, `where` a query's seed into the (task,
+    seed) it runs on (multi-task search; default: the engine's task, the seed itself)."""
     def evaluate(queries):
         tickets = [expand(q.ticket) for q in queries]
-        jobs = [(Ticket(t, {"policy_fingerprint": fingerprint}).id, Constant(t), q.seeds)
-                for t, q in zip(tickets, queries, strict=True)]
-        return [EpisodeOutcome(np.array([r.ret for r in rs]), np.array([r.success for r in rs]))
-                for rs in evaluator.run(jobs)]
+        ids = [Ticket(t, {"policy_fingerprint": fingerprint}).id for t in tickets]
+        returns = [np.zeros(len(q.seeds)) for q in queries]
+        successes = [np.zeros(len(q.seeds), dtype=bool) for q in queries]
+        by_task: dict = {}  # task -> query index -> [(position in query, seed)]
+        for i, q in enumerate(queries):
+            for position, key in enumerate(q.seeds):
+                task, seed = where(key)
+                by_task.setdefault(task, {}).setdefault(i, []).append((position, seed))
+        for task, slots in by_task.items():
+            jobs = [(ids[i], Constant(tickets[i]), [seed for _, seed in pairs]) for i, pairs in slots.items()]
+            for (i, pairs), results in zip(slots.items(), evaluator.run(jobs, task), strict=True):
+                for (position, _), r in zip(pairs, results, strict=True):
+                    returns[i][position], successes[i][position] = r.ret, r.success
+        return [EpisodeOutcome(r, s) for r, s in zip(returns, successes, strict=True)]
     return evaluate
 
 

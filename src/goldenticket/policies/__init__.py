@@ -7,11 +7,12 @@ from goldenticket.policies.registry import (
     bundled_tickets,
     find_ticket,
     fingerprint,
+    for_task,
     load_policy,
     policy_label,
     policy_names,
 )
 
 __all__ = ["BUNDLED_DIR", "MLPPolicy", "NoisePolicy", "PolicyConfig", "TicketedPolicy",
-           "bundled_tickets", "find_ticket", "fingerprint", "load_policy",
+           "bundled_tickets", "find_ticket", "fingerprint", "for_task", "load_policy",
            "policy_label", "policy_names"]

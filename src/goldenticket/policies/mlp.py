@@ -34,6 +34,7 @@ class PolicyConfig:
     layers: int = 4
     steps: int = 10  # Euler steps (flow) or DDIM steps (ddim)
     train_timesteps: int = 100  # DDIM's discrete training schedule
+    tasks: list[str] | None = None  # multi-task: the network also sees a one-hot over these tasks
 
 
 def _time_embedding(t: torch.Tensor, dim: int = 32) -> torch.Tensor:
@@ -48,7 +49,7 @@ class Denoiser(nn.Module):
     def __init__(self, cfg: PolicyConfig):
         super().__init__()
         width = cfg.horizon * cfg.action_dim
-        dims = [cfg.obs_dim + width + 32] + [cfg.hidden] * cfg.layers
+        dims = [cfg.obs_dim + len(cfg.tasks or ()) + width + 32] + [cfg.hidden] * cfg.layers
         blocks: list[nn.Module] = []
         for d_in, d_out in zip(dims[:-1], dims[1:], strict=True):
             blocks += [nn.Linear(d_in, d_out), nn.GELU()]
@@ -63,7 +64,11 @@ class Denoiser(nn.Module):
         return self.net(flat).view_as(x)
 
     def normalise_obs(self, obs: torch.Tensor) -> torch.Tensor:
-        return (obs - self.obs_mean) / self.obs_std
+        """Observations standardised; columns past obs_dim (a task one-hot) pass unchanged."""
+        n = len(self.obs_mean)
+        if obs.shape[1] == n:
+            return (obs - self.obs_mean) / self.obs_std
+        return torch.cat([(obs[:, :n] - self.obs_mean) / self.obs_std, obs[:, n:]], dim=1)
 
     def normalise_actions(self, actions: torch.Tensor) -> torch.Tensor:
         return 2 * (actions - self.act_low) / (self.act_high - self.act_low) - 1
@@ -81,7 +86,10 @@ class MLPPolicy:
     """A frozen denoising policy; `act` is deterministic given (obs, noise), on any x86-64 CPU.
 
     `model` holds the float32 weights (trained, saved, hashed); inference runs on a float64 copy.
+    A multi-task policy (`cfg.tasks`) acts once `conditioned` on one of its tasks.
     """
+
+    task: str | None = None  # the task a multi-task policy is conditioned on
 
     def __init__(self, cfg: PolicyConfig, model: Denoiser | None = None):
         if cfg.kind not in KINDS:
@@ -95,13 +103,35 @@ class MLPPolicy:
     name = property(lambda self: self.cfg.name)
     n_exec = property(lambda self: self.cfg.n_exec)
     noise_shape = property(lambda self: (self.cfg.horizon, self.cfg.action_dim))
+    tasks = property(lambda self: self.cfg.tasks)
+
+    def conditioned(self, task: str) -> MLPPolicy:
+        """This multi-task policy acting on `task` (one of `cfg.tasks`); the weights are shared."""
+        if task not in (self.cfg.tasks or ()):
+            raise UserError(f"policy {self.name!r} is not trained for task {task!r}; "
+                            f"its tasks: {', '.join(self.cfg.tasks or ['none (single-task)'])}")
+        policy = copy.copy(self)
+        policy.task = task
+        return policy
 
     def act(self, obs: np.ndarray, noise: np.ndarray) -> np.ndarray:
         """Same actions on every CPU: float64 inference in fixed blocks, rounded to a grid
         (`policies/numerics.py`)."""
         denoise = self._flow if self.cfg.kind == "flow" else self._ddim
-        x = in_blocks(denoise, self._net.normalise_obs(float64(obs)), noise)
+        x = in_blocks(denoise, self._net.normalise_obs(self._inputs(obs)), noise)
         return on_grid(self._net.denormalise_actions(x)[:, : self.cfg.n_exec])
+
+    def _inputs(self, obs: np.ndarray) -> torch.Tensor:
+        """float64 observations, with the task's one-hot for a multi-task policy."""
+        obs = float64(obs)
+        if not self.cfg.tasks:
+            return obs
+        if self.task is None:
+            raise UserError(f"policy {self.name!r} is multi-task: condition it on one of its tasks "
+                            "first (policy.conditioned(task))")
+        one_hot = torch.zeros(len(obs), len(self.cfg.tasks), dtype=torch.float64)
+        one_hot[:, self.cfg.tasks.index(self.task)] = 1.0
+        return torch.cat([obs, one_hot], dim=1)
 
     def _flow(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         ts = torch.linspace(1.0, 0.0, self.cfg.steps + 1, dtype=torch.float64)

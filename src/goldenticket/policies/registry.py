@@ -73,6 +73,13 @@ def load_policy(name: str | NoisePolicy) -> NoisePolicy:
     return MLPPolicy(dataclasses.replace(policy.cfg, name=name, steps=steps), policy.model)
 
 
+def for_task(policy: NoisePolicy, task: str) -> NoisePolicy:
+    """A multi-task policy (one with `tasks`) conditioned on `task`; any other policy as it is."""
+    if not getattr(policy, "tasks", None):
+        return policy
+    return policy.conditioned(task)
+
+
 def _checked(policy, name: str) -> NoisePolicy:
     """The object if it looks like a NoisePolicy, else a one-line UserError saying what is off."""
     shape = getattr(policy, "noise_shape", None)
