@@ -88,6 +88,8 @@ BARS = [
     ("cem-racing", "gaussian", 0.15),
     ("cma-es", "bernoulli", 0.35),
     ("cma-es", "gaussian", 0.15),
+    ("cem-bounds", "bernoulli", 0.35),
+    ("cem-bounds", "gaussian", 0.15),
 ]
 
 
@@ -116,7 +118,7 @@ def record_queries(method: str, rng_seed: int) -> list[tuple[bytes, tuple[int, .
     return seen
 
 
-@pytest.mark.parametrize("method", ["rs", "cem", "zos", "cem-racing", "cma-es"])
+@pytest.mark.parametrize("method", ["rs", "cem", "zos", "cem-racing", "cma-es", "cem-bounds"])
 def test_same_rng_seed_gives_the_same_queries(method):
     first = record_queries(method, rng_seed=3)
     assert len(first) > 10
@@ -217,7 +219,22 @@ def test_budget_truncates_to_whole_queries_and_tells_nothing_partial():
     assert all(c.n == 3 for c in result.candidates)
 
 
-@pytest.mark.parametrize("method", ["rs", "cem", "zos", "cem-racing"])
+def test_bound_racing_drops_surely_worse_tickets_and_keeps_running_the_rest():
+    def evaluate(queries):  # tickets with a positive first entry always succeed, the others never
+        return [EpisodeOutcome(np.full(len(q.seeds), float(q.ticket.flat[0] > 0)),
+                               np.full(len(q.seeds), q.ticket.flat[0] > 0)) for q in queries]
+
+    opt = make_optimizer("cem-bounds", SHAPE, SEEDS, np.random.default_rng(0), population=20, iterations=1)
+    result = run_search(opt, evaluate, budget=10_000)
+    good = [c.n for c in result.candidates if c.ticket.flat[0] > 0]
+    bad = [c.n for c in result.candidates if c.ticket.flat[0] <= 0]
+    # Hoeffding at delta 0.1 separates 1s from 0s after two blocks of 4 seeds; the race then ends as
+    # soon as no more than the 4 elites are left, or continues with the surely good ones
+    assert good and bad and max(bad) == 8 and min(good) >= 8
+    assert result.episodes_used < 20 * len(SEEDS)
+
+
+@pytest.mark.parametrize("method", ["rs", "cem", "zos", "cem-racing", "cem-bounds"])
 def test_driver_never_exceeds_the_budget(method):
     for budget in range(1, 1_300, 97):
         opt = make_optimizer(method, SHAPE, SEEDS, np.random.default_rng(budget))

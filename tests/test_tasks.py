@@ -61,8 +61,13 @@ def test_bad_task_and_seed_requests_are_user_errors():
 def test_objectives_rank_episodes_as_documented():
     from goldenticket.tasks import OBJECTIVES
 
-    success, discounted, length = (OBJECTIVES[k] for k in ("success", "discounted-success", "length"))
-    assert success(True, 80, 150) == 1.0 and success(False, 150, 150) == 0.0
-    assert 1.0 > discounted(True, 40, 150) > discounted(True, 80, 150) > discounted(False, 30, 150)
-    assert length(True, 40, 150) > length(True, 80, 150) > length(False, 150, 150) == -1.0
+    success, discounted, length, tie_broken = (
+        OBJECTIVES[k] for k in ("success", "discounted-success", "length", "success-progress"))
+    assert success(True, 80, 150, 1.0) == 1.0 and success(False, 150, 150, 0.7) == 0.0
+    assert 1.0 > discounted(True, 40, 150, 1) > discounted(True, 80, 150, 1) > discounted(False, 30, 150, 0)
+    assert length(True, 40, 150, 1) > length(True, 80, 150, 1) > length(False, 150, 150, 0) == -1.0
+    # progress breaks ties between failures, but 100 episodes' progress never outweighs one success
+    assert tie_broken(False, 150, 150, 0.6) > tie_broken(False, 150, 150, 0.2)
+    assert tie_broken(True, 90, 150, 1.0) * 1 + 99 * tie_broken(False, 150, 150, 0.0) > \
+        100 * tie_broken(False, 150, 150, 0.99)
 

@@ -132,10 +132,11 @@ def _search_parser(sub) -> None:
     search.add_argument("--stop-after-perfect", type=int, default=3,
                         help="stop once this many tickets succeed on every search seed (0: never)")
     search.add_argument("--objective", action="append", default=None,
-                        choices=["success", "discounted-success", "length", "speed"],
+                        choices=["success", "success-progress", "discounted-success", "length", "speed"],
                         help="episode return the search maximises (default success); give a second one "
                              "to also find the Pareto front between them (front.json, front.png); "
-                             "speed: short successful episodes")
+                             "speed: short successful episodes; success-progress: success, ties broken by "
+                             "how far failed episodes got (Meta-World's shaped reward at their end)")
     search.add_argument("--subspace", default="full",
                         help="what the search varies: full (every entry), tiled (one action-sized vector "
                              "repeated over the horizon), channels:I,J (those action channels; the others 0)")

@@ -67,9 +67,18 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
         live = [i for i in live if not (success[i] or done[i]) and length[i] < task.max_steps]
     wall = (time.perf_counter() - start) / max(n, 1)  # episodes ran side by side: the mean
     score = OBJECTIVES[objective]
-    return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]), task.max_steps),
+    return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]), task.max_steps,
+                                                           _progress(envs[i], success[i])),
                           int(length[i]), wall, np.array(executed[i]) if record_actions else None)
             for i, ep in enumerate(episodes)]
+
+
+def _progress(env, success: bool) -> float:
+    """1 for a success, else the env's own progress() in [0, 1] where it has one, else 0."""
+    if success:
+        return 1.0
+    progress = getattr(env, "progress", None)
+    return min(1.0, max(0.0, float(progress()))) if callable(progress) else 0.0
 
 
 def stack(observations: list) -> np.ndarray | dict[str, np.ndarray]:

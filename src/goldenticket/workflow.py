@@ -25,7 +25,7 @@ from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
 from goldenticket.studies.pareto import pareto_study
 from goldenticket.tasks import OBJECTIVES, get_task, seeds_in
-from goldenticket.tasks.base import require_heldout, require_unseen
+from goldenticket.tasks.base import FRONT_OBJECTIVES, require_heldout, require_unseen
 from goldenticket.ticket_search import EpisodeOutcome, SearchResult, make_optimizer, run_search
 from goldenticket.ticket_search.subspace import Subspace
 from goldenticket.tickets import Ticket, zero_ticket
@@ -79,6 +79,8 @@ class SearchConfig:
                     raise UserError(f"{option} is for single-task runs; not with several --task")
         elif self.no_regression:
             raise UserError("--no-regression needs several --task (it guards every task's success)")
+        if self.front_objective and not {self.objective, self.front_objective} <= set(FRONT_OBJECTIVES):
+            raise UserError(f"a Pareto front's objectives must be among {list(FRONT_OBJECTIVES)}")
         if self.front_objective == self.objective:
             raise UserError(f"--objective {self.objective} twice: a Pareto front needs two different "
                             "objectives")

@@ -32,7 +32,7 @@ def ticket_score(objective: str, results: Sequence[EpisodeResult], max_steps: in
     if objective == "speed":
         won = [1 - r.length / max_steps for r in results if r.success]
         return float(np.mean(won)) if won else 0.0
-    return float(np.mean([OBJECTIVES[objective](r.success, r.length, max_steps) for r in results]))
+    return float(np.mean([OBJECTIVES[objective](r.success, r.length, max_steps, 0.0) for r in results]))
 
 
 def non_dominated(points: Sequence[tuple[float, float]]) -> list[int]:

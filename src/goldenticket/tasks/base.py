@@ -53,17 +53,22 @@ def seed_set_of(seed: int) -> str:
     raise UserError(f"seed {seed} is outside every seed set")
 
 
-def _discounted(success: bool, length: int, max_steps: int, gamma: float = 0.99) -> float:
+def _discounted(success: bool, length: int, max_steps: int, progress: float, gamma: float = 0.99) -> float:
     return float(success) * gamma ** (length - 1)
 
 
-# Episode return from (success, length, max_steps); higher is better for every objective.
-OBJECTIVES: dict[str, Callable[[bool, int, int], float]] = {
-    "success": lambda success, length, max_steps: float(success),
+PROGRESS_WEIGHT = 0.01  # below 1/n for n <= 100 episodes: a tie-breaker, never outweighs one success
+
+# Episode return from (success, length, max_steps, progress); higher is better for every objective.
+# progress: how far a failed episode got, in [0, 1] (Env.progress; 1 on success, 0 if unknown).
+OBJECTIVES: dict[str, Callable[[bool, int, int, float], float]] = {
+    "success": lambda success, length, max_steps, progress: float(success),
+    "success-progress": lambda success, length, max_steps, progress: success + PROGRESS_WEIGHT * progress,
     "discounted-success": _discounted,
-    "length": lambda success, length, max_steps: -length / max_steps,
-    "speed": lambda success, length, max_steps: (1 - length / max_steps) if success else 0.0,
+    "length": lambda success, length, max_steps, progress: -length / max_steps,
+    "speed": lambda success, length, max_steps, progress: (1 - length / max_steps) if success else 0.0,
 }
+FRONT_OBJECTIVES = ("success", "discounted-success", "length", "speed")  # recomputable from success, length
 
 
 @functools.cache
@@ -83,6 +88,9 @@ class Env(Protocol):
     def step(self, action: np.ndarray) -> tuple[Any, bool, bool]:
         """Apply one action; returns (observation, success, done). Rewards are not used."""
         ...
+
+    # Optional: progress() -> float in [0, 1], how far the task got in the current state (a dense
+    # tie-breaker between failed episodes, read once when an episode ends).
 
 
 class Task(Protocol):

@@ -240,6 +240,49 @@ class CEMRacing(CEM):
             self._alive = np.sort(self._alive[_top_indices(scores[self._alive], keep)])
 
 
+class CEMBounds(CEM):
+    """CEM whose population is raced with confidence bounds: episode counts decided by the data.
+
+    Each iteration rolls the P candidates out block by block (`block` search seeds at a time).
+    After each block a candidate leaves the race when its upper confidence bound falls below the
+    n_elite-th best lower bound (Hoeffding, each at level `delta`, for returns spanning
+    `value_range`): it is then surely not an elite. The race ends when only n_elite remain or the
+    seeds run out; CEM refits on every candidate's mean over the episodes it ran.
+    """
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
+                 rng: np.random.Generator, *, block: int = 4, delta: float = 0.1,
+                 value_range: float = 1.0, **cem_params):
+        seeds = tuple(seeds)
+        _require(1 <= block <= len(seeds), f"block must be in 1..{len(seeds)} search seeds, got {block}")
+        _require(0 < delta < 1 and value_range > 0, "delta must be in (0, 1) and value_range > 0")
+        super().__init__(noise_shape, seeds, rng, **cem_params)
+        self.blocks = [self.seeds[i : i + block] for i in range(0, len(self.seeds), block)]
+        self.delta, self.value_range = delta, value_range
+        self._alive = np.arange(0)  # population indices still racing; empty between iterations
+
+    def ask(self) -> list[Query]:
+        if not len(self._alive):
+            if self._finished():
+                return []
+            self._tickets, self._block = self._sample(), 0
+            self._alive = np.arange(self.population)
+            self._sums, self._counts = np.zeros(self.population), np.zeros(self.population)
+        return self._queries(self._tickets[self._alive], self.blocks[self._block])
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        self._sums[self._alive] += [np.sum(r) for r in returns]
+        self._counts[self._alive] += [len(r) for r in returns]
+        self._block += 1
+        means = self._sums / self._counts  # every candidate ran the first block, so counts > 0
+        half = self.value_range * np.sqrt(np.log(2 / self.delta) / (2 * self._counts))
+        bar = np.sort((means - half)[self._alive])[-min(self.n_elite, len(self._alive))]
+        self._alive = self._alive[(means + half)[self._alive] >= bar]
+        if len(self._alive) <= self.n_elite or self._block == len(self.blocks):
+            self._refit(self._tickets, means)
+            self._alive = np.arange(0)
+
+
 class CMAES(_Base):
     """CMA-ES (the `cma` package) over the flattened ticket, from mean 0 and step size
     `sigma_init`; `population` tickets per ask, each on every search seed, scored by mean return.
@@ -296,6 +339,7 @@ OPTIMIZERS: dict[str, type] = {
     "cem": CEM,
     "zos": ZerothOrder,
     "cem-racing": CEMRacing,
+    "cem-bounds": CEMBounds,
     "cma-es": CMAES,
 }
 
