@@ -148,8 +148,9 @@ def speedup(search: list[dict], dsrl: list[dict]) -> float | None:
 
 def markdown(results: dict, wall: float, minutes: float) -> str:
     lines = [f"Regenerate: `python benchmarks/dsrl.py --minutes {minutes:g}` ({wall / 60:.0f} min here).", "",
-             "| task (flow policy) | base | DSRL-SAC best (at s, env steps) | CEM: budget, s, env steps, success "
-             "| RS: budget, s, env steps, success | CEM speed-up to DSRL's best |", "|---|---|---|---|---|---|"]
+             "| task (flow policy) | base | DSRL-SAC best (at s, env steps) | CEM: budget, s, env steps, "
+             "success | RS: budget, s, env steps, success | CEM speed-up to DSRL's best |",
+             "|---|---|---|---|---|---|"]
     for task, r in results.items():
         best = max(r["dsrl"], key=lambda p: p["success"])
 
@@ -160,9 +161,9 @@ def markdown(results: dict, wall: float, minutes: float) -> str:
         lines.append(f"| {task} | {r['base']:.0%} | {best['success']:.0%} ({best['seconds']:.0f} s, "
                      f"{best['env_steps']}) | {cells(r['cem'])} | {cells(r['rs'])} | "
                      f"{f'{ratio:.1f}x' if ratio else 'not reached'} |")
-    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; DSRL trained {minutes:g} min per pair, judged "
-              f"every {CHECKPOINT} SAC steps. Speed-up: DSRL's training time to its best success divided by the "
-              "time of CEM's first budget that matches it."]
+    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; DSRL trained {minutes:g} min per pair, "
+              f"judged every {CHECKPOINT} SAC steps. Speed-up: DSRL's training time to its best success "
+              "divided by the time of CEM's first budget that matches it."]
     return "\n".join(lines) + "\n"
 
 
@@ -175,8 +176,8 @@ def plot(results: dict, path: Path) -> None:
             ax.plot([p["seconds"] for p in r[name]], [p["success"] for p in r[name]], style,
                     label="DSRL-SAC" if name == "dsrl" else name.upper())
         ax.axhline(r["base"], color="0.45", linestyle="--", label="base")
-        ax.set(xscale="log", title=f"{task} (flow)", xlabel="wall time, s", ylabel=f"held-out success ({HELDOUT})",
-               ylim=(0, 1))
+        ax.set(xscale="log", title=f"{task} (flow)", xlabel="wall time, s", ylim=(0, 1),
+               ylabel=f"held-out success ({HELDOUT})")
         ax.legend(fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
@@ -190,14 +191,14 @@ def main() -> None:
     start, results = time.perf_counter(), {}
     for task in PAIRS:
         base = heldout_success(load_policy(f"metaworld/{task}/flow"), get_task(f"metaworld/{task}"))
-        results[task] = {"base": base, "dsrl": dsrl_curve(task, args.minutes),
-                         "cem": search_curve(task, "cem", args.workers), "rs": search_curve(task, "rs", args.workers)}
+        results[task] = {"base": base, "dsrl": dsrl_curve(task, args.minutes)}
+        results[task] |= {method: search_curve(task, method, args.workers) for method in ("cem", "rs")}
     wall = time.perf_counter() - start
     out = HERE / "results"
     settings = {"sac": SAC, "noise_magnitude": NOISE_MAGNITUDE, "checkpoint": CHECKPOINT, "budgets": BUDGETS,
                 "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT, "minutes": args.minutes}
-    write_atomic(out / "dsrl.json", json.dumps({"settings": settings, "results": results, "wall_seconds": wall},
-                                               indent=2) + "\n")
+    record = {"settings": settings, "results": results, "wall_seconds": wall}
+    write_atomic(out / "dsrl.json", json.dumps(record, indent=2) + "\n")
     write_atomic(out / "dsrl.md", markdown(results, wall, args.minutes))
     plot(results, out / "dsrl.png")
     print(markdown(results, wall, args.minutes))
