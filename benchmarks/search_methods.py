@@ -1,25 +1,31 @@
-"""Search-method comparison: held-out success of the best-so-far ticket against episodes spent.
+"""Budget curves: held-out success of each method's best-so-far ticket against search episodes.
 
     python benchmarks/search_methods.py       # writes benchmarks/results/search_methods.{md,json,png}
 
-RS, CEM, ZOS, CEM+racing and CMA-ES on two bundled policies, three search seeds each (20 tickets
-per RS batch, CEM or CMA-ES generation, 10 ZOS candidates per step). At each checkpoint budget the search is
-replayed from its seed with that budget (recorded episodes are read back, not re-run), and its
-best ticket (by search score) is rolled out on held-out seeds. Resumable: all episodes of one
-policy share a run store under `--runs`.
+Every search method on four bundled flow policies whose base success is at most 85%, from 100 to
+5000 search episodes on 20 search seeds (the `search` defaults), one run per method and policy:
+RS (20 tickets per batch), CEM, ZOS (10 candidates per step), CEM + racing, CEM + confidence-bound
+racing and CMA-ES (populations of 20), and CEM + racing on the tie-broken objective
+`success-progress`. At each checkpoint the search is replayed from its seed with that budget
+(recorded episodes are read back, not re-run) and its best ticket by search score is rolled out on
+100 held-out seeds. The second row of the plot puts every judged ticket's search score beside its
+held-out success: the regression to the mean that the choice of a ticket must survive.
+Resumable: the episodes of one policy and objective share a run store under `--runs`.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 
 import numpy as np
 
 from goldenticket.evaluation import Evaluator
+from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.policies import MLPPolicy, load_policy
+from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
@@ -28,22 +34,29 @@ from goldenticket.tickets import Ticket
 from goldenticket.workflow import query_evaluator
 
 HERE = Path(__file__).parent
-POLICIES = ("metaworld/reach-v3/ddim@8", "metaworld/pick-place-v3/flow")
-METHODS = {"rs": {"batch_size": 20}, "cem": {"population": 20}, "zos": {"candidates": 10},
-           "cem-racing": {"population": 20}, "cma-es": {"population": 20}}
-SEEDS = (0, 1, 2)
-CHECKPOINTS = (50, 100, 200, 400, 1000)  # search episodes
-SEARCH_SEEDS, HELDOUT = 10, 100
+POLICIES = ("metaworld/pick-place-v3/flow", "metaworld/reach-v3/flow", "metaworld/drawer-open-v3/flow",
+            "metaworld/push-v3/flow")
+# label -> (method, hyper-parameters, objective)
+METHODS = {"rs": ("rs", {"batch_size": 20}, "success"), "cem": ("cem", {"population": 20}, "success"),
+           "zos": ("zos", {"candidates": 10}, "success"),
+           "cem-racing": ("cem-racing", {"population": 20}, "success"),
+           "cem-bounds": ("cem-bounds", {"population": 20}, "success"),
+           "cma-es": ("cma-es", {"population": 20}, "success"),
+           "cem-racing, success-progress": ("cem-racing", {"population": 20}, "success-progress")}
+CHECKPOINTS = (100, 200, 500, 1000, 2000, 5000)  # search episodes
+SEARCH_SEEDS, HELDOUT = 20, 100
 
 
-def best_at(evaluator: Evaluator, policy: MLPPolicy, method: str, seed: int, budget: int) -> Ticket:
-    """The best ticket a search with this budget ends with (replayed from its seed)."""
-    optimizer = make_optimizer(method, policy.noise_shape, seeds_in("search", SEARCH_SEEDS),
-                               np.random.default_rng(seed), **METHODS[method])
-    fingerprint = policy.fingerprint()
+def best_at(evaluator: Evaluator, fingerprint: str, noise_shape, label: str,
+            budget: int) -> tuple[Ticket, float]:
+    """The best ticket (and its search success) a search with this budget ends with, replayed
+    from seed 0."""
+    method, params, _ = METHODS[label]
+    optimizer = make_optimizer(method, noise_shape, seeds_in("search", SEARCH_SEEDS),
+                               np.random.default_rng(0), **params)
     result = run_search(optimizer, query_evaluator(evaluator, fingerprint), budget=budget)
-    top = result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1)
-    return Ticket(top[0].ticket, {"policy_fingerprint": fingerprint})
+    top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]
+    return Ticket(top.ticket, {"policy_fingerprint": fingerprint}), float(np.mean(top.successes))
 
 
 def held_out(evaluator: Evaluator, ticket: Ticket | None) -> float:
@@ -52,68 +65,83 @@ def held_out(evaluator: Evaluator, ticket: Ticket | None) -> float:
     return float(np.mean([r.success for r in results]))
 
 
-def compare(policy: str, runs: Path, workers: int) -> dict:
-    """{"base": rate, method: [[rate per checkpoint] per seed]} for one policy."""
-    task, loaded = get_task(policy.rsplit("/", 1)[0]), load_policy(policy)
-    runs.mkdir(parents=True, exist_ok=True)
+def compare(policy_name: str, runs: Path, workers: int) -> dict:
+    """{"base": rate, label: [{"budget", "search", "heldout"} per checkpoint]}."""
+    task, policy = get_task(policy_name.rsplit("/", 1)[0]), load_policy(policy_name)
     out = {}
-    with Engine(policy, task, workers=workers) as engine, \
-            RunStore(runs / f"{policy.replace('/', '_')}.sqlite") as store:
-        evaluator = Evaluator(engine, store)
-        out["base"] = held_out(evaluator, None)
-        for method in METHODS:
-            out[method] = [[held_out(evaluator, best_at(evaluator, loaded, method, s, b))
-                            for b in CHECKPOINTS] for s in SEEDS]
-            print(f"{policy} {method}: mean held-out {np.mean(out[method], axis=0).round(3).tolist()}",
-                  flush=True)
+    for objective in dict.fromkeys(o for _, _, o in METHODS.values()):
+        with Engine(policy_name, task, workers=workers, objective=objective, loaded=policy) as engine, \
+                RunStore(runs / f"{policy_name.replace('/', '_')}_{objective}.sqlite") as store:
+            evaluator = Evaluator(engine, store)
+            out.setdefault("base", held_out(evaluator, None))
+            for label in [k for k, (_, _, o) in METHODS.items() if o == objective]:
+                out[label] = []
+                for budget in CHECKPOINTS:
+                    ticket, search = best_at(evaluator, policy.fingerprint(), policy.noise_shape, label,
+                                             budget)
+                    out[label].append({"budget": budget, "search": search,
+                                       "heldout": held_out(evaluator, ticket)})
+                print(f"{policy_name} {label}: held-out {[p['heldout'] for p in out[label]]}", flush=True)
     return out
 
 
 def winners(results: dict) -> list[tuple[str, float]]:
-    """Per checkpoint, the method with the highest mean held-out success over policies and seeds,
-    with that mean."""
-    means = {m: np.mean([np.mean(r[m], axis=0) for r in results.values()], axis=0) for m in METHODS}
+    """Per checkpoint, the method with the highest mean held-out success over policies, with that mean."""
+    means = {m: np.mean([[p["heldout"] for p in r[m]] for r in results.values()], axis=0) for m in METHODS}
     best = [max(METHODS, key=lambda m: means[m][i]) for i in range(len(CHECKPOINTS))]
     return [(m, float(means[m][i])) for i, m in enumerate(best)]
 
 
-def markdown(results: dict) -> str:
+def shrinkage(results: dict) -> float:
+    """Mean of (search score - held-out success) over every judged ticket: the optimism of selection."""
+    gaps = [p["search"] - p["heldout"] for r in results.values() for m in METHODS for p in r[m]]
+    return float(np.mean(gaps))
+
+
+def markdown(results: dict, wall: float) -> str:
     head = " | ".join(f"{b} ep" for b in CHECKPOINTS)
-    lines = [f"| policy | method | {head} |", "|---|---|" + "---|" * len(CHECKPOINTS)]
+    lines = [f"Regenerate: `python benchmarks/search_methods.py` ({wall / 60:.0f} min here, 2 workers).", "",
+             f"| policy | method | {head} |", "|---|---|" + "---|" * len(CHECKPOINTS)]
     for policy, r in results.items():
         lines.append(f"| {policy} | base (Gaussian) |" + f" {r['base']:.0%} |" * len(CHECKPOINTS))
         for m in METHODS:
-            mean, low, high = np.mean(r[m], 0), np.min(r[m], 0), np.max(r[m], 0)
-            cells = [f"{a:.0%} ({lo:.0%}-{hi:.0%})" for a, lo, hi in zip(mean, low, high, strict=True)]
-            lines.append(f"| {policy} | {m} | " + " | ".join(cells) + " |")
-    lines += ["", f"Mean over {len(SEEDS)} search seeds (min-max) of the best-so-far ticket's success on "
-              f"{HELDOUT} held-out seeds; search on {SEARCH_SEEDS} search seeds.",
-              f"Best mean over both policies (base: {np.mean([r['base'] for r in results.values()]):.1%}), "
-              "per budget: " + ", ".join(f"{b} ep: **{m}** {v:.1%}"
-                                         for b, (m, v) in zip(CHECKPOINTS, winners(results), strict=True))]
+            lines.append(f"| {policy} | {m} | " + " | ".join(f"{p['heldout']:.0%} ({p['search']:.0%})"
+                                                           for p in r[m]) + " |")
+    base = np.mean([r["base"] for r in results.values()])
+    lines += ["", f"Held-out success of the best-so-far ticket on {HELDOUT} held-out seeds (in brackets: its "
+              f"success on the {SEARCH_SEEDS} search seeds), one search per method and policy.",
+              f"Best mean over the {len(results)} policies (base: {base:.1%}), per budget: "
+              + ", ".join(f"{b} ep: **{m}** {v:.1%}"
+                          for b, (m, v) in zip(CHECKPOINTS, winners(results), strict=True)),
+              f"Regression to the mean: a chosen ticket's search success exceeds its held-out success by "
+              f"{100 * shrinkage(results):.1f} points on average."]
     return "\n".join(lines) + "\n"
 
 
 def plot(results: dict, path: Path) -> None:
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 4), sharey=True)
-    for ax, (policy, r) in zip(np.atleast_1d(axes), results.items(), strict=True):
-        for m, style in zip(METHODS, ("-o", "--s", "-^", "-D", ":v"), strict=True):  # RS and CEM may coincide
-            runs = np.array(r[m])
-            ax.plot(CHECKPOINTS, runs.mean(0), style, label=m)
-            ax.fill_between(CHECKPOINTS, runs.min(0), runs.max(0), alpha=0.15)
-        ax.axhline(r["base"], color="grey", linestyle="--", label="base (Gaussian)")
-        ax.set(xscale="log", xticks=CHECKPOINTS, xticklabels=[str(b) for b in CHECKPOINTS],
-               title=policy, xlabel="search episodes")
-        ax.minorticks_off()
-    np.atleast_1d(axes)[0].set_ylabel(f"held-out success ({HELDOUT} seeds)")
-    np.atleast_1d(axes)[0].legend()
+    fig = Figure(figsize=(4.6 * len(results), 8))
+    axes = fig.subplots(2, len(results), squeeze=False)
+    styles = ("-o", "--s", "-^", "-D", "-P", ":v", "-.x")
+    for column, (policy, r) in enumerate(results.items()):
+        curves, scatter = axes[0][column], axes[1][column]
+        for m, style in zip(METHODS, styles, strict=True):  # RS and CEM may coincide
+            curves.plot(CHECKPOINTS, [p["heldout"] for p in r[m]], style, label=m)
+            scatter.scatter([p["search"] for p in r[m]], [p["heldout"] for p in r[m]], s=14, label=m)
+        for ax in (curves, scatter):
+            ax.axhline(r["base"], color="grey", linestyle="--", label="base (Gaussian)")
+        curves.set(xscale="log", xticks=CHECKPOINTS, xticklabels=[str(b) for b in CHECKPOINTS],
+                   title=policy.removeprefix("metaworld/"), xlabel="search episodes", ylim=(0, 1))
+        curves.minorticks_off()
+        scatter.plot([0, 1], [0, 1], color="0.7", linewidth=1)
+        scatter.set(xlim=(0, 1.02), ylim=(0, 1.02), xlabel=f"search success ({SEARCH_SEEDS} seeds)",
+                    title="regression to the mean")
+    axes[0][0].set_ylabel(f"held-out success ({HELDOUT} seeds)")
+    axes[1][0].set_ylabel(f"held-out success ({HELDOUT} seeds)")
+    axes[0][0].legend(fontsize="x-small")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=90)
 
 
 def main() -> None:
@@ -121,16 +149,18 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=HERE / "runs" / "search_methods")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
+    args.runs.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
     results = {p: compare(p, args.runs, args.workers) for p in POLICIES}
+    wall = time.perf_counter() - start
     out = HERE / "results"
-    out.mkdir(exist_ok=True)
-    settings = {"methods": METHODS, "seeds": SEEDS, "checkpoints": CHECKPOINTS,
-                "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT}
-    (out / "search_methods.json").write_text(json.dumps({"settings": settings, "results": results},
-                                                        indent=2) + "\n")
-    (out / "search_methods.md").write_text(markdown(results))
+    settings = {"methods": METHODS, "checkpoints": CHECKPOINTS, "search_seeds": SEARCH_SEEDS,
+                "heldout": HELDOUT}
+    record = {"settings": settings, "results": results, "wall_seconds": wall}
+    write_atomic(out / "search_methods.json", json.dumps(record, indent=2) + "\n")
+    write_atomic(out / "search_methods.md", markdown(results, wall))
     plot(results, out / "search_methods.png")
-    print(markdown(results))
+    print(markdown(results, wall))
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
@@ -38,7 +39,14 @@ def test_existence_pairs_cover_flow_and_both_ddim_step_counts():
 
 def test_search_method_winner_per_budget():
     n = len(search_methods.CHECKPOINTS)
-    results = {"p": {"base": 0.5} | {m: [[0.5] * n] for m in search_methods.METHODS}}
-    results["p"]["zos"] = [[0.6] * n]
-    results["p"]["cem"] = [[0.4] + [0.7] * (n - 1)]
+
+    def curve(rates):
+        return [{"budget": b, "search": 1.0, "heldout": r}
+                for b, r in zip(search_methods.CHECKPOINTS, rates, strict=True)]
+
+    results = {"p": {"base": 0.5} | {m: curve([0.5] * n) for m in search_methods.METHODS}}
+    results["p"]["zos"] = curve([0.6] * n)
+    results["p"]["cem"] = curve([0.4] + [0.7] * (n - 1))
     assert search_methods.winners(results) == [("zos", 0.6)] + [("cem", 0.7)] * (n - 1)
+    held = [p["heldout"] for m in search_methods.METHODS for p in results["p"][m]]
+    assert search_methods.shrinkage(results) == pytest.approx(1 - np.mean(held))

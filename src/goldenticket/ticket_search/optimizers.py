@@ -196,69 +196,15 @@ class ZerothOrder(_Base):
         self.iteration += 1
 
 
-class CEMRacing(CEM):
-    """CEM whose population is raced by sequential halving (paper "Sequential Halving").
+class _RacedCEM(CEM):
+    """CEM whose population runs block by block over the search seeds; after each block
+    `_survivors` decides who races on (none left: the race is over), and CEM refits on every
+    candidate's mean over the episodes it ran."""
 
-    The search seeds are split into `tiers` disjoint blocks of M0 = M // tiers seeds (left-over
-    seeds are dropped from `self.seeds`). The first ask of an iteration rolls all P candidates out
-    on block 1, each next ask rolls the survivors out on the next block; after each tier the top
-    half (at least one) by cumulative mean return survives. After the last tier CEM refits on
-    every candidate's cumulative mean. Other keyword arguments are CEM's hyper-parameters.
-    """
-
-    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
-                 rng: np.random.Generator, *, tiers: int = 5, **cem_params):
-        seeds = tuple(seeds)
-        _require(tiers >= 1, f"tiers must be >= 1, got {tiers}")
-        _require(len(seeds) >= tiers, f"cem-racing needs at least tiers={tiers} search seeds, "
-                                      f"got {len(seeds)}")
-        m0 = len(seeds) // tiers
-        super().__init__(noise_shape, seeds[: tiers * m0], rng, **cem_params)
-        self.tier_seeds = [self.seeds[t * m0 : (t + 1) * m0] for t in range(tiers)]
-        self.tier = 0
-        self._alive = np.arange(0)  # population indices still racing; empty between iterations
-
-    def ask(self) -> list[Query]:
-        if not len(self._alive):
-            if self._finished():
-                return []
-            self._tickets = self._sample()
-            self._alive = np.arange(self.population)
-            self._sums, self._counts = np.zeros(self.population), np.zeros(self.population)
-        return self._queries(self._tickets[self._alive], self.tier_seeds[self.tier])
-
-    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
-        self._sums[self._alive] += [np.sum(r) for r in returns]
-        self._counts[self._alive] += [len(r) for r in returns]
-        scores = self._sums / self._counts  # every candidate ran tier 1, so counts > 0
-        self.tier += 1
-        if self.tier == len(self.tier_seeds):
-            self._refit(self._tickets, scores)
-            self.tier, self._alive = 0, np.arange(0)
-        else:
-            keep = max(1, len(self._alive) // 2)
-            self._alive = np.sort(self._alive[_top_indices(scores[self._alive], keep)])
-
-
-class CEMBounds(CEM):
-    """CEM whose population is raced with confidence bounds: episode counts decided by the data.
-
-    Each iteration rolls the P candidates out block by block (`block` search seeds at a time).
-    After each block a candidate leaves the race when its upper confidence bound falls below the
-    n_elite-th best lower bound (Hoeffding, each at level `delta`, for returns spanning
-    `value_range`): it is then surely not an elite. The race ends when only n_elite remain or the
-    seeds run out; CEM refits on every candidate's mean over the episodes it ran.
-    """
-
-    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
-                 rng: np.random.Generator, *, block: int = 4, delta: float = 0.1,
-                 value_range: float = 1.0, **cem_params):
-        seeds = tuple(seeds)
-        _require(1 <= block <= len(seeds), f"block must be in 1..{len(seeds)} search seeds, got {block}")
-        _require(0 < delta < 1 and value_range > 0, "delta must be in (0, 1) and value_range > 0")
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 block: int, **cem_params):
         super().__init__(noise_shape, seeds, rng, **cem_params)
         self.blocks = [self.seeds[i : i + block] for i in range(0, len(self.seeds), block)]
-        self.delta, self.value_range = delta, value_range
         self._alive = np.arange(0)  # population indices still racing; empty between iterations
 
     def ask(self) -> list[Query]:
@@ -275,12 +221,62 @@ class CEMBounds(CEM):
         self._counts[self._alive] += [len(r) for r in returns]
         self._block += 1
         means = self._sums / self._counts  # every candidate ran the first block, so counts > 0
-        half = self.value_range * np.sqrt(np.log(2 / self.delta) / (2 * self._counts))
-        bar = np.sort((means - half)[self._alive])[-min(self.n_elite, len(self._alive))]
-        self._alive = self._alive[(means + half)[self._alive] >= bar]
-        if len(self._alive) <= self.n_elite or self._block == len(self.blocks):
+        self._alive = self._survivors(means) if self._block < len(self.blocks) else np.arange(0)
+        if not len(self._alive):
             self._refit(self._tickets, means)
-            self._alive = np.arange(0)
+
+    def _survivors(self, means: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+
+class CEMRacing(_RacedCEM):
+    """CEM whose population is raced by sequential halving (paper "Sequential Halving").
+
+    The search seeds are split into `tiers` disjoint blocks of M0 = M // tiers seeds (left-over
+    seeds are dropped from `self.seeds`). The first ask of an iteration rolls all P candidates out
+    on block 1, each next ask rolls the survivors out on the next block; after each tier the top
+    half (at least one) by cumulative mean return survives. After the last tier CEM refits on
+    every candidate's cumulative mean. Other keyword arguments are CEM's hyper-parameters.
+    """
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
+                 rng: np.random.Generator, *, tiers: int = 5, **cem_params):
+        seeds = tuple(seeds)
+        _require(tiers >= 1, f"tiers must be >= 1, got {tiers}")
+        _require(len(seeds) >= tiers, f"cem-racing needs at least tiers={tiers} search seeds, "
+                                      f"got {len(seeds)}")
+        m0 = len(seeds) // tiers
+        super().__init__(noise_shape, seeds[: tiers * m0], rng, m0, **cem_params)
+
+    def _survivors(self, means: np.ndarray) -> np.ndarray:
+        keep = max(1, len(self._alive) // 2)
+        return np.sort(self._alive[_top_indices(means[self._alive], keep)])
+
+
+class CEMBounds(_RacedCEM):
+    """CEM whose population is raced with confidence bounds: episode counts decided by the data.
+
+    Each iteration rolls the P candidates out block by block (`block` search seeds at a time).
+    After each block a candidate leaves the race when its upper confidence bound falls below the
+    n_elite-th best lower bound (Hoeffding, each at level `delta`, for returns spanning
+    `value_range`): it is then surely not an elite. The race ends when only n_elite remain or the
+    seeds run out; CEM refits on every candidate's mean over the episodes it ran.
+    """
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
+                 rng: np.random.Generator, *, block: int = 4, delta: float = 0.1,
+                 value_range: float = 1.0, **cem_params):
+        _require(1 <= block <= len(seeds), f"block must be in 1..{len(seeds)} search seeds, got {block}")
+        _require(0 < delta < 1 and value_range > 0, "delta must be in (0, 1) and value_range > 0")
+        super().__init__(noise_shape, seeds, rng, block, **cem_params)
+        self.delta, self.value_range = delta, value_range
+
+    def _survivors(self, means: np.ndarray) -> np.ndarray:
+        half = self.value_range * np.sqrt(np.log(2 / self.delta) / (2 * self._counts))
+        alive = self._alive
+        bar = np.sort((means - half)[alive])[-min(self.n_elite, len(alive))]
+        alive = alive[(means + half)[alive] >= bar]
+        return alive if len(alive) > self.n_elite else np.arange(0)
 
 
 class CMAES(_Base):
