@@ -22,7 +22,6 @@ the same kind of CPU only (the searches' on any).
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 import time
 from pathlib import Path
@@ -30,9 +29,9 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
+from results_files import write_results
 
 from goldenticket.evaluation import Evaluator
-from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine, Episode, rollout
@@ -41,7 +40,6 @@ from goldenticket.tasks import get_task, seeds_in
 from goldenticket.ticket_search import make_optimizer, run_search
 from goldenticket.workflow import query_evaluator
 
-HERE = Path(__file__).parent
 PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies with the lowest base
 NOISE_MAGNITUDE = 1.5
 SAC = dict(learning_rate=3e-4, batch_size=256, tau=0.005, gamma=0.99, train_freq=1, gradient_steps=20,
@@ -194,14 +192,10 @@ def main() -> None:
         results[task] = {"base": base, "dsrl": dsrl_curve(task, args.minutes)}
         results[task] |= {method: search_curve(task, method, args.workers) for method in ("cem", "rs")}
     wall = time.perf_counter() - start
-    out = HERE / "results"
     settings = {"sac": SAC, "noise_magnitude": NOISE_MAGNITUDE, "checkpoint": CHECKPOINT, "budgets": BUDGETS,
                 "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT, "minutes": args.minutes}
-    record = {"settings": settings, "results": results, "wall_seconds": wall}
-    write_atomic(out / "dsrl.json", json.dumps(record, indent=2) + "\n")
-    write_atomic(out / "dsrl.md", markdown(results, wall, args.minutes))
-    plot(results, out / "dsrl.png")
-    print(markdown(results, wall, args.minutes))
+    write_results("dsrl", {"settings": settings, "results": results, "wall_seconds": wall},
+                  markdown(results, wall, args.minutes), lambda path: plot(results, path))
 
 
 if __name__ == "__main__":

@@ -19,14 +19,13 @@ benchmarks/results/multitask.{md,json,png}.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+from results_files import write_results
 
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
-from goldenticket.files import write_atomic
 from goldenticket.multitask import find_multitask_tickets, transfer
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import short_task
@@ -155,11 +154,8 @@ def main() -> None:
     wall = time.perf_counter() - start
     results = {"policy": args.policy, "transfer": study, "multitask": mt, "fresh": fresh,
                "wall_seconds": wall}
-    out = HERE / "results"
-    write_atomic(out / "multitask.json", json.dumps(results, indent=2) + "\n")
-    write_atomic(out / "multitask.md", markdown(results, wall, args.policy))
-    plot(results, out / "multitask.png")
-    print(markdown(results, wall, args.policy))
+    write_results("multitask", results, markdown(results, wall, args.policy),
+                  lambda path: plot(results, path))
 
 
 if __name__ == "__main__":

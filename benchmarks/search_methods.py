@@ -16,14 +16,13 @@ Resumable: the episodes of one policy and objective share a run store under `--r
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+from results_files import write_results
 
 from goldenticket.evaluation import Evaluator
-from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine
@@ -153,14 +152,10 @@ def main() -> None:
     start = time.perf_counter()
     results = {p: compare(p, args.runs, args.workers) for p in POLICIES}
     wall = time.perf_counter() - start
-    out = HERE / "results"
     settings = {"methods": METHODS, "checkpoints": CHECKPOINTS, "search_seeds": SEARCH_SEEDS,
                 "heldout": HELDOUT}
-    record = {"settings": settings, "results": results, "wall_seconds": wall}
-    write_atomic(out / "search_methods.json", json.dumps(record, indent=2) + "\n")
-    write_atomic(out / "search_methods.md", markdown(results, wall))
-    plot(results, out / "search_methods.png")
-    print(markdown(results, wall))
+    write_results("search_methods", {"settings": settings, "results": results, "wall_seconds": wall},
+                  markdown(results, wall), lambda path: plot(results, path))
 
 
 if __name__ == "__main__":

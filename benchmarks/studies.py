@@ -21,7 +21,8 @@ import json
 import time
 from pathlib import Path
 
-from goldenticket.files import write_atomic
+from results_files import write_results
+
 from goldenticket.report import rate_text
 from goldenticket.workflow import SearchConfig, evaluate_tickets, find_golden_tickets
 
@@ -129,11 +130,8 @@ def main() -> None:
         results["mixture"][task] = mixture(task, front["summary"], args.workers)
         results["subspace"][task] = subspace(task, args.runs, args.workers)
     wall = time.perf_counter() - start
-    out = HERE / "results"
-    write_atomic(out / "studies.json", json.dumps(results | {"wall_seconds": wall}, indent=2) + "\n")
-    write_atomic(out / "studies.md", markdown(results, wall))
-    plot(results, out / "studies.png")
-    print(markdown(results, wall))
+    write_results("studies", results | {"wall_seconds": wall}, markdown(results, wall),
+                  lambda path: plot(results, path))
 
 
 if __name__ == "__main__":
