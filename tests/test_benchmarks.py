@@ -50,3 +50,23 @@ def test_search_method_winner_per_budget():
     assert search_methods.winners(results) == [("zos", 0.6)] + [("cem", 0.7)] * (n - 1)
     held = [p["heldout"] for m in search_methods.METHODS for p in results["p"][m]]
     assert search_methods.shrinkage(results) == pytest.approx(1 - np.mean(held))
+
+
+def test_dsrl_steers_the_frozen_policy_through_the_noise_space():
+    import dsrl
+    from stable_baselines3 import SAC
+
+    from goldenticket.policies import load_policy
+    from goldenticket.tasks import get_task, seeds_in
+
+    policy, task = load_policy("metaworld/reach-v3/flow"), get_task("metaworld/reach-v3", max_steps=12)
+    env = dsrl.NoiseSpaceEnv(policy, task, seeds_in("search", 3))
+    obs, _ = env.reset()
+    obs, reward, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape, np.float32))
+    assert env.observation_space.contains(obs) and env.env_steps == policy.n_exec and reward in (0.0, 1.0)
+    quick = dsrl.SAC | {"learning_starts": 10, "gradient_steps": 2}
+    model = SAC("MlpPolicy", env, seed=0, device="cpu", **quick)
+    model.learn(30)
+    steered = dsrl.ActorNoise(policy, model)
+    actions = steered.act(np.stack([obs, obs]), np.zeros((2, *policy.noise_shape), np.float32))
+    assert actions.shape == (2, policy.n_exec, 4) and np.array_equal(actions[0], actions[1])
