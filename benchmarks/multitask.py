@@ -30,7 +30,7 @@ from goldenticket.multitask import find_multitask_tickets, transfer
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import short_task
 from goldenticket.policies import load_policy
-from goldenticket.report import rate_text
+from goldenticket.report import gain_text, rate_text
 from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task
@@ -96,8 +96,8 @@ def markdown(results: dict, wall: float, policy: str) -> str:
               "|---|" + "---|" * len(study["tasks"])]
     for ticket, found in study["tickets"].items():
         row = study["cells"][ticket]
-        gains = [f"{100 * row[t]['gain']:+.0f}{'*' if row[t]['significant'] else ''}" for t in study["tasks"]]
-        lines.append(f"| {ticket} ({short_task(found)}) | " + " | ".join(gains) + " |")
+        gains = " | ".join(gain_text(row[t]) for t in study["tasks"])
+        lines.append(f"| {ticket} ({', '.join(map(short_task, found))}) | {gains} |")
     lines += ["", "### The multi-task search's own verdict (first 100 held-out seeds): best ticket "
               f"{mt['best']}", "",
               "| task | base | zero | multi-task ticket | regresses |", "|---|---|---|---|---|"]
@@ -144,8 +144,8 @@ def main() -> None:
     mt = find_multitask_tickets(SearchConfig(args.policy, TASKS, budget=BUDGET * len(TASKS), search_seeds=5,
                                              heldout=100, top_k=3, workers=args.workers), runs / "multitask")
     searches = runs / "transfer" / "search"
-    own = {found: Ticket.load(searches / found.replace("/", "_") / "tickets" / f"{tid}.safetensors")
-           for tid, found in study["tickets"].items()}
+    own = {task: Ticket.load(searches / task.replace("/", "_") / "tickets" / f"{tid}.safetensors")
+           for tid, tasks in study["tickets"].items() for task in tasks}
     multi = Ticket.load(runs / "multitask" / "tickets" / f"{mt['best']}.safetensors")
     by_id = {t.id: t for t in own.values()}
     roles = {t: {"own ticket": own[t], "multi-task ticket": multi,

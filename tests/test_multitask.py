@@ -110,10 +110,12 @@ def test_transfer_writes_the_matrix_heatmap_and_cover(mt_policy, tmp_path, capsy
     out = tmp_path / "transfer"
     assert main(["transfer", "--policy", mt_policy, *_tasks_args(), *SMALL, "--out", str(out)]) == 0
     study = json.loads((out / "transfer.json").read_text())
-    assert study["tasks"] == TASKS and len(study["tickets"]) == 2
+    # each task's search found one ticket; two tasks may find the same one (same seed, same pool)
+    found = sorted(t for tasks in study["tickets"].values() for t in tasks)
+    assert study["tasks"] == TASKS and found == sorted(TASKS)
     assert all(set(row) == set(TASKS) for row in study["cells"].values())
     assert set(study["cover"]["table"]) == set(TASKS)
-    assert len((out / "transfer.csv").read_text().splitlines()) == 1 + 2 * 2
+    assert len((out / "transfer.csv").read_text().splitlines()) == 1 + 2 * len(study["tickets"])
     assert (out / "transfer.png").stat().st_size > 0 and "switching table" in capsys.readouterr().out
     searched = {json.loads(p.read_text())["best"]["ticket_id"]
                 for p in (out / "search").glob("*/summary.json")}

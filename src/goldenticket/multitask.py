@@ -138,9 +138,12 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
             if ticket.metadata.get("policy_fingerprint", names.fingerprint) != names.fingerprint:
                 raise UserError(f"{ref}: ticket {ticket.id} was found for policy "
                                 f"{ticket.metadata.get('policy')}, not {names.policy} ({names.fingerprint})")
+        found_on = {t.id: t.metadata.get("tasks", [t.metadata.get("task", "given")]) for t in tickets}
     else:
-        tickets = [_searched_ticket(cfg, task.name, out) for task in tasks]
-    tickets = list({t.id: t for t in tickets}.values())
+        found = {task.name: _searched_ticket(cfg, task.name, out) for task in tasks}
+        tickets = list(found.values())
+        found_on = {t.id: [task for task, f in found.items() if f.id == t.id] for t in tickets}
+    tickets = list({t.id: t for t in tickets}.values())  # several tasks' searches may find one ticket
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
     with _open_store(out, cfg, names) as store, \
@@ -150,7 +153,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
         with progress_bar(evaluator, cfg.heldout * len(sources) * len(tasks) + cfg.heldout * len(tasks),
                           "transfer matrix"):
             per_task = {t.name: judge(evaluator, sources, heldout, base, t.name) for t in tasks}
-    study = matrix(per_task, {t.id: t.metadata.get("task", "given") for t in tickets})
+    study = matrix(per_task, found_on)
     study |= {"policy": names.policy, "heldout_seeds": [heldout[0], heldout[-1]]}
     write_atomic(out / "transfer.json", json.dumps(study, indent=2) + "\n")
     write_atomic(out / "transfer.csv", transfer_csv(study))
@@ -165,9 +168,9 @@ def _searched_ticket(cfg: SearchConfig, task: str, out: Path) -> Ticket:
     return Ticket.load(Path(summary["best"]["ticket_path"]))
 
 
-def matrix(per_task: dict[str, dict[str, Judged]], found_on: dict[str, str]) -> dict:
-    """Each ticket on each task (success, gain over base, p vs base Holm-adjusted over the tickets
-    on that task), and the greedy cover."""
+def matrix(per_task: dict[str, dict[str, Judged]], found_on: dict[str, list[str]]) -> dict:
+    """Each ticket (with the tasks it was found on) on each task: success, gain over base, p vs
+    base Holm-adjusted over the tickets on that task; and the greedy cover."""
     cells = {}
     for task, judged in per_task.items():
         adjusted = holm_adjust([judged[t].p_value for t in found_on])
@@ -215,7 +218,7 @@ def transfer_csv(study: dict) -> str:
     for ticket, found_on in study["tickets"].items():
         for task, cell in study["cells"][ticket].items():
             base = study["baselines"][task]["base"]["success_rate"]
-            lines.append(f"{ticket},{found_on},{task},{cell['success_rate']:.4f},{base:.4f},{cell['gain']:.4f},"
+            lines.append(f"{ticket},{'+'.join(found_on)},{task},{cell['success_rate']:.4f},{base:.4f},{cell['gain']:.4f},"
                          f"{cell['p_value']:.4g},{cell['significant']}")
     return "\n".join(lines) + "\n"
 

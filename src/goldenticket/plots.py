@@ -10,6 +10,7 @@ from matplotlib.patches import Rectangle
 from matplotlib.ticker import PercentFormatter
 
 from goldenticket.files import write_atomic
+from goldenticket.report import gain_text
 
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 
@@ -124,13 +125,14 @@ def transfer_png(study: dict, path: Path) -> Path:
     for i, ticket in enumerate(tickets):
         for j, task in enumerate(tasks):
             cell = study["cells"][ticket][task]
-            ax.text(j, i, f"{100 * cell['gain']:+.0f}{'*' if cell['significant'] else ''}", ha="center",
+            ax.text(j, i, gain_text(cell), ha="center",
                     va="center", fontsize="small",
                     color="white" if abs(cell["gain"]) > limit / 2 else "black")
             if study["cover"]["table"][task]["use"] == ticket:
                 ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, linewidth=2, color="goldenrod"))
     ax.set_xticks(range(len(tasks)), [short_task(t) for t in tasks], rotation=40, ha="right")
-    ax.set_yticks(range(len(tickets)), [f"{t} ({short_task(study['tickets'][t])})" for t in tickets])
+    ax.set_yticks(range(len(tickets)), [f"{t} ({', '.join(map(short_task, study['tickets'][t]))})"
+                                        for t in tickets])
     ax.set(title="gain over base, points (* significant; box: the cover's pick)",
            xlabel="evaluated on", ylabel="ticket (found on)")
     fig.colorbar(image, ax=ax, format=PercentFormatter(1.0))

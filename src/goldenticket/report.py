@@ -102,13 +102,17 @@ def multitask_text(summary: dict) -> str:
                               "better than the ticket on that task, p < 0.05 (not adjusted)."])
 
 
+def gain_text(cell: dict) -> str:
+    """A transfer-matrix cell: the gain over the base in points, * when significant."""
+    return f"{100 * cell['gain']:+.0f}{'*' if cell['significant'] else ''}"
+
+
 def transfer_text(study: dict) -> str:
     """The transfer matrix (gain over base in points, * significant) and the cover's switching table."""
     tasks = study["tasks"]
     header = ("ticket (found on)", *[_short(t) for t in tasks])
-    rows = [(f"{ticket} ({_short(found)})", *[f"{100 * study['cells'][ticket][t]['gain']:+.0f}"
-                                              f"{'*' if study['cells'][ticket][t]['significant'] else ''}"
-                                              for t in tasks])
+    rows = [(f"{ticket} ({', '.join(_short(t) for t in found)})", *[gain_text(study["cells"][ticket][t])
+                                                                     for t in tasks])
             for ticket, found in study["tickets"].items()]
     cover = study["cover"]
     switching = [(_short(task), row["use"], f"{row['success_rate']:.1%}",
