@@ -94,16 +94,18 @@ def test_greedy_cover_picks_the_fewest_tickets_and_falls_back_to_the_best():
         return {"success_rate": 0.5 + gain, "gain": gain, "p_value": 0.01 if significant else 0.5,
                 "significant": significant}
 
-    gains = {"A": (0.2, 0.1, -0.1, -0.2), "B": (0.3, 0.0, 0.2, -0.1), "C": (0.0, 0.0, 0.3, -0.3)}
+    gains = {"A": (0.2, 0.1, -0.1, -0.2, 0.0), "B": (0.3, 0.0, 0.2, -0.1, 0.0),
+             "C": (0.0, 0.0, 0.3, -0.3, 0.1)}
     significant = {"A": {"t1", "t2"}, "B": {"t1", "t3"}, "C": {"t3"}}
     cells = {t: {f"t{i + 1}": cell(g, f"t{i + 1}" in significant[t]) for i, g in enumerate(gains[t])}
              for t in gains}
-    baselines = {t: {"base": {"success_rate": 0.5}} for t in ("t1", "t2", "t3", "t4")}
+    baselines = {t: {"base": {"success_rate": 0.5}} for t in ("t1", "t2", "t3", "t4", "t5")}
     cover = greedy_cover(cells, baselines)
-    # A and B each cover two tasks, B with the larger gain; then A covers t2; t4: no ticket beats base
-    assert cover["tickets"] == ["B", "A"]
+    # A and B each cover two tasks, B with the larger gain; then A covers t2; t4: no ticket beats
+    # the base; t5: C beats it, not significantly
+    assert cover["tickets"] == ["B", "A"] and cover["fallbacks"] == ["C"]
     uses = {t: row["use"] for t, row in cover["table"].items()}
-    assert uses == {"t1": "B", "t2": "A", "t3": "B", "t4": "base"}
+    assert uses == {"t1": "B", "t2": "A", "t3": "B", "t4": "base", "t5": "C"}
 
 
 def test_transfer_writes_the_matrix_heatmap_and_cover(mt_policy, tmp_path, capsys):

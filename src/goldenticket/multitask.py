@@ -187,7 +187,8 @@ def matrix(per_task: dict[str, dict[str, Judged]], found_on: dict[str, list[str]
 def greedy_cover(cells: dict[str, dict[str, dict]], baselines: dict[str, dict]) -> dict:
     """The smallest set of tickets (greedy set cover) such that every task a ticket significantly
     improves has one that does; every other task gets the ticket with the highest success there if
-    it beats the base's rate, else the base. Returns the tickets and the task -> ticket table."""
+    it beats the base's rate, else the base. Returns the cover's tickets, the other tickets the
+    table uses (`fallbacks`) and the task -> ticket table."""
     wins = {ticket: {task for task, cell in row.items() if cell["significant"]}
             for ticket, row in cells.items()}
     uncovered, chosen, table = set().union(*wins.values()), [], {}
@@ -208,7 +209,7 @@ def greedy_cover(cells: dict[str, dict[str, dict]], baselines: dict[str, dict]) 
             table[task] = {"use": "base", "significant": False, "gain": 0.0, "p_value": None,
                            "success_rate": baselines[task]["base"]["success_rate"]}
     uses = {row["use"] for row in table.values()} - {"base"}
-    return {"tickets": chosen + sorted(uses - set(chosen)),
+    return {"tickets": chosen, "fallbacks": sorted(uses - set(chosen)),
             "table": {task: table[task] for task in baselines}}
 
 

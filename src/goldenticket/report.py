@@ -119,9 +119,12 @@ def transfer_text(study: dict) -> str:
                   f"{study['baselines'][task]['base']['success_rate']:.1%}",
                   "significant" if row["significant"] else "")
                  for task, row in cover["table"].items()]
+    covered = sum(row["significant"] for row in cover["table"].values())
     return "\n".join([
         "Gain over each task's base (points) on the held-out seeds; * Holm-adjusted p < 0.05:",
         _columns(header, rows), "",
-        f"Greedy cover: {len(cover['tickets'])} ticket(s) ({', '.join(cover['tickets']) or 'none'}); "
-        "the switching table:",
+        f"Greedy cover: {len(cover['tickets'])} ticket(s) ({', '.join(cover['tickets']) or 'none'}) "
+        f"significantly better than the base on {covered} of {len(tasks)} tasks; every other task uses "
+        "the ticket with its best success if that beats the base "
+        f"({', '.join(cover['fallbacks']) or 'none'}), else the base. The switching table:",
         _columns(("task", "use", "success", "base", ""), switching)])
