@@ -13,7 +13,7 @@ On the bundled multi-task policy, with the same search budget for both approache
    table (each task runs the ticket the cover assigns it, or the base).
 
 Every run lives in `--runs` (run stores, resumable per episode). Writes
-benchmarks/results/multitask.{md,json,png}.
+benchmarks/results/multitask.{md,json,png} and the transfer heatmap multitask_transfer.png.
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-from results_files import write_results
+from results_files import RESULTS, write_results
 
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
 from goldenticket.multitask import find_multitask_tickets, transfer
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.plots import short_task
+from goldenticket.plots import short_task, transfer_png
 from goldenticket.policies import load_policy
 from goldenticket.report import gain_text, rate_text
 from goldenticket.rollout import Engine
@@ -114,7 +114,7 @@ def plot(results: dict, path: Path) -> None:
     fresh = results["fresh"]
     colors = {"base": "0.45", "zero": "tab:blue", "own ticket": "tab:green", "multi-task ticket": "goldenrod",
               "cover": "tab:purple"}
-    fig = Figure(figsize=(13, 4.5))
+    fig = Figure(figsize=(13, 5))
     ax = fig.subplots()
     width = 0.8 / len(ARMS)
     for i, arm in enumerate(ARMS):
@@ -126,7 +126,7 @@ def plot(results: dict, path: Path) -> None:
     ax.set_xticks(range(len(fresh)), [short_task(t) for t in fresh], rotation=20, ha="right")
     ax.set(ylim=(0, 1.05), ylabel="success (95% Wilson)",
            title=f"{results['policy']} on MT10: fresh held-out seeds ({len(FRESH)} per task)")
-    ax.legend(ncols=len(ARMS), fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.18))
+    ax.legend(ncols=len(ARMS), fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.3))
     fig.tight_layout()
     fig.savefig(path, dpi=90)
 
@@ -156,6 +156,7 @@ def main() -> None:
                "wall_seconds": wall}
     write_results("multitask", results, markdown(results, wall, args.policy),
                   lambda path: plot(results, path))
+    transfer_png(study, RESULTS / "multitask_transfer.png")
 
 
 if __name__ == "__main__":
