@@ -122,6 +122,15 @@ def test_transfer_writes_the_matrix_heatmap_and_cover(mt_policy, tmp_path, capsy
     searched = {json.loads(p.read_text())["best"]["ticket_id"]
                 for p in (out / "search").glob("*/summary.json")}
     assert searched == set(study["tickets"])
+    # the same tickets given by file, no search: the same matrix
+    paths = [str(p) for p in (out / "search").glob("*/tickets/*.safetensors")]
+    given = [arg for path in paths for arg in ("--ticket", path)]
+    unbudgeted = ["transfer", "--policy", mt_policy, *_tasks_args(), *SMALL[2:]]
+    assert main([*unbudgeted, *given, "--out", str(tmp_path / "given")]) == 0
+    assert json.loads((tmp_path / "given" / "transfer.json").read_text())["cells"] == study["cells"]
+    capsys.readouterr()
+    assert main([*unbudgeted, "--out", str(tmp_path / "none")]) == 2
+    assert "needs --budget" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("args, message", [

@@ -91,11 +91,13 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
                    help="Ray cluster address, e.g. ray://head:10001 (default: start a local Ray instance)")
 
 
-def _search_options(p: argparse.ArgumentParser) -> None:
+def _search_options(p: argparse.ArgumentParser, per_task_budget: bool = False) -> None:
     p.add_argument("--method", default="cem-racing", choices=list(OPTIMIZERS),
                    help="random search, cross-entropy method, zeroth-order search, CEM with "
-                        "sequential-halving racing, or CMA-ES (the cma package)")
-    p.add_argument("--budget", type=int, required=True, help="search episodes to spend (per search)")
+                        "sequential-halving racing, CEM with confidence-bound racing, or CMA-ES")
+    p.add_argument("--budget", type=int, required=not per_task_budget,
+                   help="search episodes per task (needed unless --ticket)" if per_task_budget
+                   else "search episodes to spend")
     p.add_argument("--search-seeds", type=int, default=20, help="initial states to search on (per task)")
     p.add_argument("--heldout", type=int, default=200,
                    help="held-out initial states (per task) to judge base, zero ticket and tickets on")
@@ -108,7 +110,7 @@ def _transfer_parser(sub) -> None:
     tr.add_argument("--task", required=True, action="append", help="task name; repeat (at least two)")
     tr.add_argument("--ticket", action="append", default=[],
                     help="take these tickets (files or bundled ids) instead of searching one per task")
-    _search_options(tr)
+    _search_options(tr, per_task_budget=True)
     tr.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     _run_args(tr)
 
@@ -332,6 +334,8 @@ def _transfer(args) -> int:
     tasks = _tasks(args.task)
     if not isinstance(tasks, tuple):
         raise UserError("transfer needs at least two --task")
+    if args.budget is None and not args.ticket:
+        raise UserError("transfer needs --budget (search episodes per task) or --ticket")
     start = time.perf_counter()
     cfg = SearchConfig(args.policy, tasks, args.method, args.budget, args.seed, args.search_seeds,
                        args.heldout, workers=args.workers, max_steps=args.max_steps, backend=args.backend,
