@@ -50,14 +50,17 @@ def test_bad_policy_inputs(tmp_path):
 
 
 def test_every_bundled_policy_loads_runs_and_has_a_model_card(rng):
-    from goldenticket.policies import BUNDLED_DIR, policy_names
+    from goldenticket.policies import BUNDLED_DIR, for_task, policy_names
 
-    assert "metaworld/pick-place-v3/flow" in policy_names()
+    assert {"metaworld/pick-place-v3/flow", "metaworld/mt10/flow", "metaworld/mt10/ddim"} <= set(
+        policy_names())
     for name in policy_names():
         policy = load_policy(name)
         assert policy.name == name and (BUNDLED_DIR / name / "MODEL_CARD.md").is_file()
         noise = rng.standard_normal((2, *policy.noise_shape)).astype(np.float32)
-        assert policy.act(np.zeros((2, 39), np.float32), noise).shape == (2, policy.n_exec, 4)
+        for task in policy.tasks or [None]:  # a multi-task policy acts on each of its tasks
+            acting = policy if task is None else for_task(policy, task)
+            assert acting.act(np.zeros((2, 39), np.float32), noise).shape == (2, policy.n_exec, 4)
 
 
 def test_denoising_steps_set_at_load_time(rng):
@@ -72,15 +75,17 @@ def test_denoising_steps_set_at_load_time(rng):
             load_policy(bad)
 
 
-def test_zoo_ships_at_least_twenty_policies_with_measured_cards():
+def test_zoo_ships_at_least_22_policies_with_measured_cards():
     import json
 
     from goldenticket.policies import BUNDLED_DIR, policy_names
 
-    assert len(policy_names()) >= 20
+    assert len(policy_names()) >= 22
     for name in policy_names():
         card = json.loads((BUNDLED_DIR / name / "card.json").read_text())
-        assert card["policy"] == name and card["base"]["n"] == card["zero"]["n"] == 200
+        per_task = card.get("tasks", {"": card})  # a multi-task card: measured on each task
+        assert card["policy"] == name and card["base"]["n"] == card["zero"]["n"] == 200 * len(per_task)
+        assert all(t["base"]["n"] == t["zero"]["n"] == 200 for t in per_task.values())
 
 
 def test_a_shipped_ticket_reproduces_its_recorded_heldout_success():

@@ -93,8 +93,8 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
 
 def _search_options(p: argparse.ArgumentParser, per_task_budget: bool = False) -> None:
     p.add_argument("--method", default="cem-racing", choices=list(OPTIMIZERS),
-                   help="random search, cross-entropy method, zeroth-order search, CEM with "
-                        "sequential-halving racing, CEM with confidence-bound racing, or CMA-ES")
+                   help="random search, CEM, zeroth-order search, CEM raced by halving "
+                        "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES")
     p.add_argument("--budget", type=int, required=not per_task_budget,
                    help="search episodes per task (needed unless --ticket)" if per_task_budget
                    else "search episodes to spend")
