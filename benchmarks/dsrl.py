@@ -44,7 +44,7 @@ PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies wit
 NOISE_MAGNITUDE = 1.5
 SAC = dict(learning_rate=3e-4, batch_size=256, tau=0.005, gamma=0.99, train_freq=1, gradient_steps=20,
            learning_starts=100)
-CHECKPOINT = 250  # SAC steps between held-out judgements
+CHECKPOINT = 400  # SAC steps between held-out judgements
 BUDGETS = (100, 300, 1000)
 SEARCH_SEEDS, HELDOUT = 20, 100
 
