@@ -108,7 +108,8 @@ def markdown(results: dict, wall: float) -> str:
                                                            for p in r[m]) + " |")
     base = np.mean([r["base"] for r in results.values()])
     lines += ["", f"Held-out success of the best-so-far ticket on {HELDOUT} held-out seeds (in brackets: its "
-              f"success on the {SEARCH_SEEDS} search seeds), one search per method and policy.",
+              f"success on the search seeds it ran, all {SEARCH_SEEDS} once any ticket has), one search per "
+              "method and policy.",
               f"Best mean over the {len(results)} policies (base: {base:.1%}), per budget: "
               + ", ".join(f"{b} ep: **{m}** {v:.1%}"
                           for b, (m, v) in zip(CHECKPOINTS, winners(results), strict=True)),
