@@ -78,8 +78,10 @@ def find_multitask_tickets(cfg: SearchConfig, out: Path) -> dict:
         with progress_bar(evaluator, 2 * cfg.heldout * len(tasks), "held-out: base and zero ticket"):
             for name in names:
                 evaluator.run([("base", base, heldout), ("zero", zero, heldout)], name)
+        def where(key: int) -> tuple[str, int]:
+            return names[key % len(names)], search_seeds[key // len(names)]
+
         with progress_bar(evaluator, cfg.budget, f"search ({cfg.method}, {len(tasks)} tasks)") as bar:
-            where = lambda key: (names[key % len(names)], search_seeds[key // len(names)])  # noqa: E731
             result = run_search(optimizer, query_evaluator(evaluator, run_names.fingerprint, expand, where),
                                 budget=cfg.budget, stop_after_perfect=cfg.stop_after_perfect,
                                 max_tickets=cfg.max_tickets)
