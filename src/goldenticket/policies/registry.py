@@ -74,8 +74,9 @@ def load_policy(name: str | NoisePolicy) -> NoisePolicy:
 
 
 def for_task(policy: NoisePolicy, task: str) -> NoisePolicy:
-    """A multi-task policy (one with `tasks`) conditioned on `task`; any other policy as it is."""
-    if not getattr(policy, "tasks", None):
+    """A multi-task policy (one with `tasks` and `conditioned(task)`) conditioned on `task`; any
+    other policy as it is."""
+    if not (getattr(policy, "tasks", None) and callable(getattr(policy, "conditioned", None))):
         return policy
     return policy.conditioned(task)
 
