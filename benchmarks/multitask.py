@@ -28,9 +28,9 @@ from results_files import RESULTS, write_results
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
 from goldenticket.multitask import find_multitask_tickets, transfer
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.plots import short_task, transfer_png
+from goldenticket.plots import transfer_png
 from goldenticket.policies import load_policy
-from goldenticket.report import gain_text, rate_text
+from goldenticket.report import gain_text, rate_text, short_task
 from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task

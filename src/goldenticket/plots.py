@@ -10,7 +10,7 @@ from matplotlib.patches import Rectangle
 from matplotlib.ticker import PercentFormatter
 
 from goldenticket.files import write_atomic
-from goldenticket.report import gain_text
+from goldenticket.report import gain_text, short_task
 
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 
@@ -137,11 +137,6 @@ def transfer_png(study: dict, path: Path) -> Path:
            xlabel="evaluated on", ylabel="ticket (found on)")
     fig.colorbar(image, ax=ax, format=PercentFormatter(1.0))
     return _save(fig, path)
-
-
-def short_task(name: str) -> str:
-    """`metaworld/pick-place-v3` -> `pick-place-v3`."""
-    return name.rsplit("/", 1)[-1]
 
 
 def _save(fig: Figure, path: Path) -> Path:

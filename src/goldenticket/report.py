@@ -46,8 +46,8 @@ def policy_table(cards: list[dict]) -> str:
     rows = []
     for c in cards:
         for task, entry in c.get("tasks", {}).items():
-            rows.append((f"{c['policy']} on {_short(task)}", str(entry["demos"]), rate_text(entry["base"], 6),
-                         rate_text(entry["zero"], 6), str(entry["base"]["n"])))
+            rows.append((f"{c['policy']} on {short_task(task)}", str(entry["demos"]),
+                         rate_text(entry["base"], 6), rate_text(entry["zero"], 6), str(entry["base"]["n"])))
         label = f"{c['policy']} (all {len(c['tasks'])} tasks)" if "tasks" in c else c["policy"]
         rows.append((label, str(c["demos"]), rate_text(c["base"], 6), rate_text(c["zero"], 6),
                      str(c["base"]["n"])))
@@ -68,8 +68,9 @@ def ticket_table(tickets: list) -> str:
                      "fresh seeds"), rows)
 
 
-def _short(task: str) -> str:
-    return task.rsplit("/", 1)[-1]
+def short_task(name: str) -> str:
+    """`metaworld/pick-place-v3` -> `pick-place-v3`."""
+    return name.rsplit("/", 1)[-1]
 
 
 def multitask_text(summary: dict) -> str:
@@ -81,8 +82,8 @@ def multitask_text(summary: dict) -> str:
     for task, arms in [*summary["tasks"].items(), ("average", summary["average"])]:
         t = arms[shown]
         flag = "REGRESSES" if task in summary["regressions"][shown] else ""
-        rows.append((_short(task), rate_text(arms["base"], 6), rate_text(arms["zero"], 6), rate_text(t, 6),
-                     f"{t['p_value']:.3g}", f"{t['p_vs_zero']:.3g}", flag))
+        rows.append((short_task(task), rate_text(arms["base"], 6), rate_text(arms["zero"], 6),
+                     rate_text(t, 6), f"{t['p_value']:.3g}", f"{t['p_vs_zero']:.3g}", flag))
     table = _columns(("task", "base", "zero ticket", f"ticket {shown}", "p vs base", "p vs zero", ""), rows)
     lines = [table, ""]
     average = summary["average"]
@@ -95,7 +96,7 @@ def multitask_text(summary: dict) -> str:
                      f"{len(summary['tasks'])} tasks vs base {average['base']['success_rate']:.1%} "
                      f"(p = {average[best]['p_value']:.3g}, {verdict}).")
     for ticket in summary["tickets"]:
-        worse = ", ".join(_short(t) for t in summary["regressions"][ticket]) or "none"
+        worse = ", ".join(short_task(t) for t in summary["regressions"][ticket]) or "none"
         lines.append(f"  ticket {ticket}: average {average[ticket]['success_rate']:.1%}; "
                      f"significantly worse than base on: {worse}")
     return "\n".join(lines + [summary["p_value_note"] + " Regression: one-sided exact paired test, base "
@@ -110,12 +111,12 @@ def gain_text(cell: dict) -> str:
 def transfer_text(study: dict) -> str:
     """The transfer matrix (gain over base in points, * significant) and the cover's switching table."""
     tasks = study["tasks"]
-    header = ("ticket (found on)", *[_short(t) for t in tasks])
-    rows = [(f"{ticket} ({', '.join(_short(t) for t in found)})", *[gain_text(study["cells"][ticket][t])
+    header = ("ticket (found on)", *[short_task(t) for t in tasks])
+    rows = [(f"{ticket} ({', '.join(short_task(t) for t in found)})", *[gain_text(study["cells"][ticket][t])
                                                                      for t in tasks])
             for ticket, found in study["tickets"].items()]
     cover = study["cover"]
-    switching = [(_short(task), row["use"], f"{row['success_rate']:.1%}",
+    switching = [(short_task(task), row["use"], f"{row['success_rate']:.1%}",
                   f"{study['baselines'][task]['base']['success_rate']:.1%}",
                   "significant" if row["significant"] else "")
                  for task, row in cover["table"].items()]
