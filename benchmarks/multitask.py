@@ -41,7 +41,7 @@ HERE = Path(__file__).parent
 MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
         "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
 TASKS = tuple(f"metaworld/{t}" for t in MT10)
-BUDGET = 500  # search episodes per task
+METHOD, BUDGET = "cem-racing", 500  # search method and episodes per task (as recorded; not the defaults)
 FRESH = list(range(1_000_100, 1_000_300))
 ARMS = ("base", "zero", "own ticket", "multi-task ticket", "cover")
 
@@ -139,9 +139,9 @@ def main() -> None:
     args = parser.parse_args()
     runs = args.runs / args.policy.replace("/", "_")
     start = time.perf_counter()
-    study = transfer(SearchConfig(args.policy, TASKS, budget=BUDGET, heldout=100, workers=args.workers),
+    study = transfer(SearchConfig(args.policy, TASKS, METHOD, BUDGET, heldout=100, workers=args.workers),
                      runs / "transfer")
-    mt = find_multitask_tickets(SearchConfig(args.policy, TASKS, budget=BUDGET * len(TASKS), search_seeds=5,
+    mt = find_multitask_tickets(SearchConfig(args.policy, TASKS, METHOD, BUDGET * len(TASKS), search_seeds=5,
                                              heldout=100, top_k=3, workers=args.workers), runs / "multitask")
     searches = runs / "transfer" / "search"
     own = {task: Ticket.load(searches / task.replace("/", "_") / "tickets" / f"{tid}.safetensors")

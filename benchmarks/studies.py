@@ -36,7 +36,7 @@ MIXTURE_SEEDS = range(1_000_200, 1_000_400)
 def pareto(task: str, runs: Path, workers: int) -> dict:
     cfg = SearchConfig(f"metaworld/{task}/flow", f"metaworld/{task}", method="rs", budget=1000,
                        search_seeds=10, heldout=100, top_k=3, stop_after_perfect=None, workers=workers,
-                       front_objective="speed")
+                       front_objective="speed", validation_seeds=0)
     summary = find_golden_tickets(cfg, runs / f"pareto_{task}")
     return json.loads((runs / f"pareto_{task}" / "front.json").read_text()) | {"summary": summary}
 
@@ -56,8 +56,8 @@ def subspace(task: str, runs: Path, workers: int) -> dict:
     for space in SUBSPACES:
         curves[space] = []
         for budget in BUDGETS:
-            cfg = SearchConfig(f"metaworld/{task}/flow", f"metaworld/{task}", budget=budget, heldout=100,
-                               top_k=1, workers=workers, subspace=space)
+            cfg = SearchConfig(f"metaworld/{task}/flow", f"metaworld/{task}", "cem-racing", budget,
+                               heldout=100, top_k=1, workers=workers, subspace=space, validation_seeds=0)
             s = find_golden_tickets(cfg, runs / f"subspace_{task}_{space.replace(':', '')}_{budget}")
             curves[space].append({"budget": budget, "episodes": s["search_episodes"], "best": s["best"],
                                   "base": s["base"]})

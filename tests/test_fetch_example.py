@@ -17,7 +17,8 @@ def test_fetch_push_is_searched_from_the_cli(tmp_path):
     out = tmp_path / "run"
     argv = ["search", "--policy", "examples.fetch_push:make_policy",
             "--task", "examples.fetch_push:make_env", "--method", "cem-racing", "--budget", "40",
-            "--search-seeds", "5", "--heldout", "16", "--top-k", "2", "--out", str(out)]
+            "--search-seeds", "5", "--validation-seeds", "4", "--heldout", "16", "--top-k", "2",
+            "--out", str(out)]
     proc = subprocess.run([sys.executable, "-m", "goldenticket.cli", *argv], cwd=ROOT, capture_output=True,
                           text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr

@@ -50,7 +50,8 @@ def test_ray_actors_give_the_local_episodes_even_when_one_dies(local_ray):
 
 def test_search_from_the_cli_on_ray_matches_local(tmp_path):
     argv = ["search", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env",
-            "--max-steps", "30", "--budget", "120", "--search-seeds", "20", "--heldout", "30", "--top-k", "2"]
+            "--max-steps", "30", "--budget", "120", "--search-seeds", "20", "--heldout", "30", "--top-k", "2",
+            "--validation-seeds", "10"]
     runs = {}
     for backend in ("local", "ray"):
         proc = subprocess.run([sys.executable, "-m", "goldenticket.cli", *argv, "--backend", backend,

@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 
 SEARCH = ["search", "--policy", "metaworld/reach-v3/flow", "--task", "metaworld/reach-v3",
-          "--budget", "24", "--search-seeds", "5", "--heldout", "8", "--top-k", "2",
-          "--stop-after-perfect", "0", "--max-steps", "30"]
-BASELINES, TOTAL = 16, 16 + 24 + 16  # episodes: base and zero, search, top tickets
+          "--method", "cem-racing", "--budget", "24", "--search-seeds", "5", "--validation-seeds", "3",
+          "--heldout", "8", "--top-k", "2", "--stop-after-perfect", "0", "--max-steps", "30"]
+BASELINES, TOTAL = 16, 16 + 24 + 18 + 16  # episodes: base and zero, search, validation of 6, top tickets
 
 
 def _command(out: Path, workers: int = 1) -> list[str]:
@@ -74,8 +74,9 @@ def test_progress_bars_never_count_past_their_total(reference):
     assert counts and all(done <= total for done, total in counts), counts
 
 
-@pytest.mark.parametrize("episodes, workers", [(1, 1), (BASELINES + 1, 2), (BASELINES + 24, 1)],
-                         ids=["baselines", "search", "top tickets"])
+@pytest.mark.parametrize("episodes, workers", [(1, 1), (BASELINES + 1, 2), (BASELINES + 24, 1),
+                                               (BASELINES + 42, 2)],
+                         ids=["baselines", "search", "validation", "top tickets"])
 def test_kill_9_then_rerun_gives_the_same_numbers(reference, tmp_path, episodes, workers):
     code, _, kept = _stop_after(tmp_path, episodes, signal.SIGKILL, workers)
     assert code == -signal.SIGKILL and kept <= TOTAL  # killed mid-run: after all episodes at the latest

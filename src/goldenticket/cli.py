@@ -92,12 +92,12 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
 
 
 def _search_options(p: argparse.ArgumentParser, per_task_budget: bool = False) -> None:
-    p.add_argument("--method", default="cem-racing", choices=list(OPTIMIZERS),
+    p.add_argument("--method", default="cma-es", choices=list(OPTIMIZERS),
                    help="random search, CEM, zeroth-order search, CEM raced by halving "
                         "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES")
-    p.add_argument("--budget", type=int, required=not per_task_budget,
+    p.add_argument("--budget", type=int, default=None,
                    help="search episodes per task (needed unless --ticket)" if per_task_budget
-                   else "search episodes to spend")
+                   else "search episodes to spend (default: 2000)")
     p.add_argument("--search-seeds", type=int, default=20, help="initial states to search on (per task)")
     p.add_argument("--heldout", type=int, default=200,
                    help="held-out initial states (per task) to judge base, zero ticket and tickets on")
@@ -125,10 +125,11 @@ def _search_parser(sub) -> None:
     search.add_argument("--no-regression", action="store_true",
                         help="several --task: never pick a ticket significantly worse than the base on "
                              "a task")
-    search.add_argument("--top-k", type=int, default=5, help="best search tickets judged on held-out states")
-    search.add_argument("--validation-seeds", type=int, default=0,
-                        help="if > 0: run the 3 x top-k best search tickets on this many validation "
-                             "states and judge the top-k of those on held-out states")
+    search.add_argument("--top-k", type=int, default=3, help="best search tickets judged on held-out states")
+    search.add_argument("--validation-seeds", type=int, default=None,
+                        help="run the 3 x top-k best search tickets on this many validation states and "
+                             "judge the top-k of those on held-out states (default: 100 for one task; "
+                             "0: judge the search's top-k)")
     search.add_argument("--max-tickets", type=int, default=None,
                         help="stop after this many distinct tickets (default: no cap)")
     search.add_argument("--stop-after-perfect", type=int, default=3,
@@ -298,7 +299,8 @@ def _search(args) -> int:
     objectives = args.objective or ["success"]
     if len(objectives) > 2:
         raise UserError(f"--objective given {len(objectives)} times; a Pareto front takes two")
-    cfg = SearchConfig(args.policy, _tasks(args.task), args.method, args.budget, args.seed,
+    budget = SearchConfig.budget if args.budget is None else args.budget
+    cfg = SearchConfig(args.policy, _tasks(args.task), args.method, budget, args.seed,
                        args.search_seeds, args.heldout, args.top_k, objectives[0],
                        args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
                        args.success, args.backend, args.address, args.subspace,

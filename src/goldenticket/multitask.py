@@ -166,7 +166,8 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
 def _searched_ticket(cfg: SearchConfig, task: str, out: Path) -> Ticket:
     """The top search ticket of a single-task search on `task` (judged there on the held-out seeds)."""
     folder = out / "search" / task.replace("/", "_")
-    summary = find_golden_tickets(replace(cfg, task=task, top_k=1, no_regression=False), folder)
+    single = replace(cfg, task=task, top_k=1, no_regression=False, validation_seeds=cfg.validation())
+    summary = find_golden_tickets(single, folder)
     return Ticket.load(Path(summary["best"]["ticket_path"]))
 
 

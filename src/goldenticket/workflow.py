@@ -38,12 +38,12 @@ class SearchConfig:
     policy: str | NoisePolicy  # a name or import string (see policies.load_policy), or the object
     task: str | Callable | tuple[str, ...]  # a task name, a gymnasium.Env factory or its import
     # string, or several task names (multi-task: `multitask.find_multitask_tickets`, `transfer`)
-    method: str = "cem-racing"
-    budget: int = 1500  # search episodes
+    method: str = "cma-es"
+    budget: int = 2000  # search episodes
     seed: int = 0
     search_seeds: int = 20
     heldout: int = 200
-    top_k: int = 5
+    top_k: int = 3
     objective: str = "success"
     stop_after_perfect: int | None = 3
     max_tickets: int | None = None
@@ -54,7 +54,8 @@ class SearchConfig:
     address: str | None = None  # the Ray cluster (None: a local Ray instance)
     subspace: str = "full"  # or "tiled", "channels:I,J" (ticket_search.subspace)
     front_objective: str | None = None  # a second objective: also find the Pareto front (studies.pareto)
-    validation_seeds: int = 0  # > 0: pick the top_k among 3 x top_k search tickets on these seeds
+    validation_seeds: int | None = None  # > 0: pick the top_k among 3 x top_k search tickets on these
+    # seeds; None: 100 for one task, 0 for several
     no_regression: bool = False  # multi-task: never call best a ticket significantly worse on a task
 
     def check(self) -> None:
@@ -64,7 +65,7 @@ class SearchConfig:
                             f"got {self.stop_after_perfect}")
         if self.seed < 0:
             raise UserError(f"--seed must be >= 0, got {self.seed}")
-        if self.validation_seeds < 0:
+        if self.validation_seeds is not None and self.validation_seeds < 0:
             raise UserError(f"--validation-seeds must be >= 0, got {self.validation_seeds}")
         for name in ("budget", "search_seeds", "heldout", "top_k", "workers", "max_tickets", "max_steps"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
@@ -84,6 +85,12 @@ class SearchConfig:
         if self.front_objective == self.objective:
             raise UserError(f"--objective {self.objective} twice: a Pareto front needs two different "
                             "objectives")
+
+    def validation(self) -> int:
+        """Validation seeds this run uses."""
+        if self.validation_seeds is None:
+            return 0 if isinstance(self.task, tuple) else 100
+        return self.validation_seeds
 
     def optimizer(self, noise_shape: tuple[int, int], search_seeds: list[int]):
         """This run's optimizer over its sub-space, fresh from its seed; UserError if the budget
@@ -142,7 +149,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
 
 def _top(result: SearchResult, cfg: SearchConfig, seeds: int) -> list:
     """The best search candidates: top_k, or 3 x top_k to choose from on validation seeds."""
-    k = cfg.top_k * (3 if cfg.validation_seeds else 1)
+    k = cfg.top_k * (3 if cfg.validation() else 1)
     return result.top(k, min_episodes=seeds) or result.top(k)
 
 
@@ -150,9 +157,9 @@ def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket]) -> l
     """`tickets` as ranked by search, or, with validation seeds, the top_k of them by mean return
     on those seeds (ties: search rank): a selection on states neither the search nor the
     held-out verdict uses."""
-    if not cfg.validation_seeds:
+    if not cfg.validation():
         return tickets
-    seeds = seeds_in("validation", cfg.validation_seeds)
+    seeds = seeds_in("validation", cfg.validation())
     with progress_bar(evaluator, len(seeds) * len(tickets), "validation: search's best tickets"):
         runs = evaluator.run([(t.id, Constant(t.noise), seeds) for t in tickets])
     scores = [float(np.mean([r.ret for r in rs])) for rs in runs]
@@ -277,7 +284,10 @@ def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path,
     entries = []
     for t in ranked:
         t.metadata["heldout"] = judged[t.id].to_dict() | {"seeds": span}
-        path = t.save(out / "tickets" / f"{t.id}.safetensors")
+        path = out / "tickets" / f"{t.id}.safetensors"
+        if path.exists() and "front" in (saved := Ticket.load(path).metadata):  # also on the Pareto front
+            t.metadata["front"] = saved["front"]
+        t.save(path)
         validation = {k: t.metadata[k] for k in ("validation_score",) if k in t.metadata}
         entries.append(judged[t.id].to_dict() | validation | {"ticket_id": t.id, "ticket_path": str(path),
                                                               "search_score": t.metadata["search_score"]})
