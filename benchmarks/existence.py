@@ -7,19 +7,19 @@ One pair is a bundled policy on its task: flow (10 Euler steps), DDIM with 8 ste
 with 2 steps (same weights). Each pair runs `find_golden_tickets` with the settings below into
 `--runs/<pair>` (resumable per episode), so the table regenerates from scratch with the same
 numbers. The search's top tickets are judged on held-out seeds against the base policy and the
-zero ticket; the best one, if golden, is then re-measured on fresh held-out seeds it was never
-judged on.
+zero ticket; the best one is then judged again, with base and zero ticket, on fresh held-out
+seeds that no choice saw. Results: benchmarks/results/existence.{md,json,png}.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 from build_zoo import MT10
+from results_files import write_results
 
 from goldenticket.evaluation import Evaluator, judge
 from goldenticket.noise import Constant, Gaussian
@@ -156,6 +156,43 @@ def markdown(rows: list[dict], summary: dict, wall: float) -> str:
     return "\n".join(lines) + "\n"
 
 
+def figure(rows: list[dict], path: Path) -> None:
+    """Per pair, on the fresh seeds: base, zero ticket and best ticket (left); for the pairs with a
+    weak base, the failure reduction against the 45% target (right)."""
+    from matplotlib.figure import Figure
+
+    rows = sorted(rows, key=lambda r: r["base"]["success_rate"])
+    labels = [f"{r['task'].removesuffix('-v3')} {r['policy']}" for r in rows]
+    fig = Figure(figsize=(13, 8))
+    left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [3, 2]})
+    y = np.arange(len(rows))
+    for arm, style in (("base", dict(color="0.45", marker="o")), ("zero", dict(color="tab:blue", marker="x")),
+                       ("best", dict(color="goldenrod", marker="D"))):
+        rates = [(r["fresh"] if arm == "best" else r["fresh"][arm])["success_rate"] for r in rows]
+        left.scatter(rates, y, label="best ticket" if arm == "best" else arm, zorder=3, **style)
+    for i, r in enumerate(rows):
+        left.plot([r["fresh"]["base"]["success_rate"], r["fresh"]["success_rate"]], [i, i], color="0.8",
+                  zorder=1)
+    weak = [r for r in rows if r["base"]["success_rate"] <= WEAK_BASE]
+    left.axhline(len(weak) - 0.5, color="0.6", ls=":")
+    left.set_yticks(y, labels, fontsize="small")
+    left.set(xlabel=f"success on {FRESH} fresh held-out seeds", xlim=(-0.02, 1.02),
+             title=f"Best ticket vs base and zero ticket (below the line: judged base <= {WEAK_BASE:.0%})")
+    left.legend(fontsize="small", loc="lower left")
+    cut = [(r["fresh"]["success_rate"] - r["fresh"]["base"]["success_rate"])
+           / (1 - r["fresh"]["base"]["success_rate"]) for r in weak]
+    colors = ["goldenrod" if r["fresh"]["p_value"] < 0.05 else "0.6" for r in weak]
+    right.barh(np.arange(len(weak)), cut, color=colors)
+    right.axvline(0.45, color="tab:red", ls="--", label="target 45%")
+    right.axvline(float(np.mean(cut)), color="k", label=f"mean {np.mean(cut):.0%}")
+    right.set_yticks(np.arange(len(weak)), [labels[rows.index(r)] for r in weak], fontsize="small")
+    right.set(xlabel="failure reduction over the base (fresh seeds)",
+              title="Weak-base pairs (gold: significant gain on fresh seeds)")
+    right.legend(fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+
+
 def ship(summaries: list[dict]) -> int:
     """Replace the bundled tickets with this run's golden ones (each with its fresh check)."""
     for old in bundled_tickets():
@@ -191,13 +228,9 @@ def main() -> None:
     if args.only != list(MT10):  # a partial table never overwrites the committed results
         print(markdown(rows, summary, wall))
         return
-    results = HERE / "results"
-    results.mkdir(exist_ok=True)
-    (results / "existence.json").write_text(json.dumps(
-        {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
-         "wall_time_s": round(wall)}, indent=2) + "\n")
-    (results / "existence.md").write_text(markdown(rows, summary, wall))
-    print((results / "existence.md").read_text())
+    record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
+              "wall_time_s": round(wall)}
+    write_results("existence", record, markdown(rows, summary, wall), lambda path: figure(rows, path))
     if args.ship:
         print(f"Shipped {ship(summaries)} golden tickets into {BUNDLED_DIR}.")
 
