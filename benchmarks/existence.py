@@ -187,7 +187,7 @@ def figure(rows: list[dict], path: Path) -> None:
     right.axvline(float(np.mean(cut)), color="k", label=f"mean {np.mean(cut):.0%}")
     right.set_yticks(np.arange(len(weak)), [labels[rows.index(r)] for r in weak], fontsize="small")
     right.set(xlabel="failure reduction over the base (fresh seeds)",
-              title="Weak-base pairs (gold: significant gain on fresh seeds)")
+              title="Weak-base pairs (gold: significant on fresh seeds)")
     right.legend(fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
