@@ -14,12 +14,14 @@ def _rate(p, n=200):
 
 
 def _row(base, zero, best, p_base, p_zero):
+    fresh = _rate(best) | {"p_value": p_base, "p_vs_zero": p_zero, "base": _rate(base), "zero": _rate(zero),
+                           "inside_recorded_interval": True}
     return {"task": "t", "policy": "flow", "base": _rate(base), "zero": _rate(zero), "best": _rate(best),
-            "p_vs_base": p_base, "p_vs_zero": p_zero, "golden": p_base < 0.05, "fresh": None,
-            "search": "cem-racing, 800 episodes"}
+            "p_vs_base": p_base, "p_vs_zero": p_zero, "golden": p_base < 0.05, "fresh": fresh,
+            "search": "cma-es, 2000 episodes"}
 
 
-def test_existence_summary_counts_gains_and_sign_test():
+def test_existence_summary_counts_gains_sign_test_and_targets():
     rows = [_row(0.5, 0.6, 0.7, 0.001, 0.04), _row(0.5, 0.5, 0.5, 1.0, 1.0),
             _row(0.6, 0.7, 0.55, 0.9, 0.99), _row(0.3, 0.3, 0.4, 0.01, 0.2)]
     s = existence.summary_rows(rows)
@@ -29,6 +31,11 @@ def test_existence_summary_counts_gains_and_sign_test():
     assert s["vs_zero"]["significant"] == 1 and s["vs_zero"]["losses"] == 1
     table = existence.markdown(rows, s, 60.0)
     assert table.count("\n| t | flow |") == 4 and "**golden**" in table and "2 of 4 pairs" in table
+    expected = {"vs_base": 0.5, "vs_zero": 0.25,
+                "failure_reduction": pytest.approx(np.mean([0.2 / 0.5, 0, -0.05 / 0.4, 0.1 / 0.7]))}
+    assert s["targets"] == {"pairs": 4, "judged": expected, "fresh": expected}
+    strong = existence.summary_rows([*rows, _row(0.9, 0.9, 1.0, 0.001, 0.001)])["targets"]
+    assert strong["pairs"] == 4 and strong["judged"] == expected  # a base above 85% is not a target pair
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():
