@@ -108,11 +108,15 @@ def targets(rows: list[dict], arms) -> dict:
     """Issue 14's targets over `rows`, with `arms(row)` giving "base", "zero", "best" rates and the
     best's p-values: significant gains over base and zero, mean failure reduction over the base."""
     picked = [arms(r) for r in rows]
-    reduction = [(a["best"]["success_rate"] - a["base"]["success_rate"]) / (1 - a["base"]["success_rate"])
-                 for a in picked]
+    reduction = [failure_reduction(a["best"], a["base"]) for a in picked]
     return {"vs_base": sum(a["p_value"] < 0.05 for a in picked) / len(picked),
             "vs_zero": sum(a["p_vs_zero"] < 0.05 for a in picked) / len(picked),
             "failure_reduction": float(np.mean(reduction))}
+
+
+def failure_reduction(best: dict, base: dict) -> float:
+    """The share of the base's failures that the best ticket turns into successes."""
+    return (best["success_rate"] - base["success_rate"]) / (1 - base["success_rate"])
 
 
 def markdown(rows: list[dict], summary: dict, wall: float) -> str:
@@ -179,8 +183,7 @@ def figure(rows: list[dict], path: Path) -> None:
     left.set(xlabel=f"success on {FRESH} fresh held-out seeds", xlim=(-0.02, 1.02),
              title=f"Best ticket vs base and zero ticket (below the line: judged base <= {WEAK_BASE:.0%})")
     left.legend(fontsize="small", loc="lower left")
-    cut = [(r["fresh"]["success_rate"] - r["fresh"]["base"]["success_rate"])
-           / (1 - r["fresh"]["base"]["success_rate"]) for r in weak]
+    cut = [failure_reduction(r["fresh"], r["fresh"]["base"]) for r in weak]
     colors = ["goldenrod" if r["fresh"]["p_value"] < 0.05 else "0.6" for r in weak]
     right.barh(np.arange(len(weak)), cut, color=colors)
     right.axvline(0.45, color="tab:red", ls="--", label="target 45%")

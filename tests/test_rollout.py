@@ -29,3 +29,18 @@ def test_noise_sources_are_reproducible_per_episode():
     tickets = np.stack([np.full(shape, i, np.float32) for i in range(3)])
     draws = [TopK(tickets, 0).sampler(5, shape)()[0, 0] for _ in range(2)]
     assert draws[0] == draws[1]
+
+
+def test_only_objectives_that_read_progress_ask_the_env_for_it(monkeypatch):
+    from goldenticket.tasks.metaworld import MetaWorldEnv
+
+    policy, task = load_policy("metaworld/reach-v3/flow"), get_task("metaworld/reach-v3", max_steps=8)
+    episodes = [Episode(Gaussian(0), s) for s in seeds_in("search", 2)]  # 8 steps: both fail
+    graded = rollout(policy, task, episodes, objective="success-progress")
+    assert all(not r.success and 0 < r.ret <= 0.01 for r in graded)
+
+    def unwanted(self):
+        raise AssertionError("progress() read for an objective that does not use it")
+
+    monkeypatch.setattr(MetaWorldEnv, "progress", unwanted)
+    assert [r.ret for r in rollout(policy, task, episodes)] == [0.0, 0.0]

@@ -17,6 +17,7 @@ from goldenticket.factories import picklable
 from goldenticket.noise import NoiseSource
 from goldenticket.policies import NoisePolicy, for_task, load_policy, policy_label
 from goldenticket.tasks import OBJECTIVES, Task
+from goldenticket.tasks.base import PROGRESS_OBJECTIVES
 
 
 @dataclass(frozen=True)
@@ -67,8 +68,10 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
         live = [i for i in live if not (success[i] or done[i]) and length[i] < task.max_steps]
     wall = (time.perf_counter() - start) / max(n, 1)  # episodes ran side by side: the mean
     score = OBJECTIVES[objective]
+    reads_progress = objective in PROGRESS_OBJECTIVES  # else no env is asked: progress() costs a reward call
+    progress = [_progress(envs[i], success[i]) if reads_progress else 0.0 for i in range(n)]
     return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]), task.max_steps,
-                                                           _progress(envs[i], success[i])),
+                                                           progress[i]),
                           int(length[i]), wall, np.array(executed[i]) if record_actions else None)
             for i, ep in enumerate(episodes)]
 

@@ -131,13 +131,12 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
-        if cfg.front_objective:
-            front = _front(cfg, names, evaluator, result, (search_seeds, heldout), (base, zero), expand,
-                           task.max_steps, out)
+        front, fronts = _front(cfg, names, evaluator, result, (search_seeds, heldout), (base, zero), expand,
+                               task.max_steps, out) if cfg.front_objective else (None, {})
     adjust_for_multiplicity(judged, [t.id for t in tickets])
     span = [heldout[0], heldout[-1]]
-    summary = _summary(cfg, names, judged, _save_ranked(tickets, judged, out, span), result, span)
-    if cfg.front_objective:
+    summary = _summary(cfg, names, judged, _save_ranked(tickets, judged, out, span, fronts), result, span)
+    if front:
         summary["front"] = [label for label in front["heldout"] if label not in ("base", "zero")]
     write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     title = f"{names.policy} on {names.task}"
@@ -170,9 +169,10 @@ def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket]) -> l
 
 
 def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: SearchResult, seeds: tuple,
-           baselines: tuple, expand: Callable, max_steps: int, out: Path) -> dict:
+           baselines: tuple, expand: Callable, max_steps: int, out: Path) -> tuple[dict, dict[str, dict]]:
     """The Pareto front of the search's tickets for (objective, front objective), judged on the
-    held-out seeds; its tickets saved, front.json and front.png written."""
+    held-out seeds; its tickets saved, front.json and front.png written. Returns the study and each
+    front ticket's front metadata by id."""
     search_seeds, heldout = seeds
     scored = {}
     for candidate in result.candidates:
@@ -180,16 +180,18 @@ def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: Search
             noise = expand(candidate.ticket)
             scored[Ticket(noise, {"policy_fingerprint": names.fingerprint}).id] = (Constant(noise), candidate)
 
+    fronts = {}
+
     def save(candidate, front_metadata: dict) -> str:
         ticket = _ticket(cfg, names, result, candidate, search_seeds, expand)
-        ticket.metadata["front"] = front_metadata
+        ticket.metadata["front"] = fronts[ticket.id] = front_metadata
         return str(ticket.save(out / "tickets" / f"{ticket.id}.safetensors"))
 
     with progress_bar(evaluator, None, "Pareto front"):  # its size is known only once found
         study = pareto_study(evaluator, scored, (cfg.objective, cfg.front_objective), max_steps=max_steps,
                              heldout=heldout, base=baselines[0], zero=baselines[1], save=save, out=out)
     write_atomic(out / "front.json", json.dumps(study, indent=2) + "\n")
-    return study
+    return study, fronts
 
 
 def arm_rows(base: dict, zero: dict, tickets: list[dict]) -> dict[str, dict]:
@@ -277,17 +279,17 @@ def _ticket(cfg: SearchConfig, names: Names, result: SearchResult, candidate,
     })
 
 
-def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path,
-                 span: list[int]) -> list[dict]:
-    """Save each ticket with its held-out result; entries best first (success, then p)."""
+def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, span: list[int],
+                 fronts: dict[str, dict]) -> list[dict]:
+    """Save each ticket with its held-out result (and its place on the Pareto front, `fronts` by
+    ticket id, if it has one); entries best first (success, then p)."""
     ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate, judged[t.id].p_value))
     entries = []
     for t in ranked:
         t.metadata["heldout"] = judged[t.id].to_dict() | {"seeds": span}
-        path = out / "tickets" / f"{t.id}.safetensors"
-        if path.exists() and "front" in (saved := Ticket.load(path).metadata):  # also on the Pareto front
-            t.metadata["front"] = saved["front"]
-        t.save(path)
+        if t.id in fronts:
+            t.metadata["front"] = fronts[t.id]
+        path = t.save(out / "tickets" / f"{t.id}.safetensors")
         validation = {k: t.metadata[k] for k in ("validation_score",) if k in t.metadata}
         entries.append(judged[t.id].to_dict() | validation | {"ticket_id": t.id, "ticket_path": str(path),
                                                               "search_score": t.metadata["search_score"]})

@@ -68,7 +68,8 @@ OBJECTIVES: dict[str, Callable[[bool, int, int, float], float]] = {
     "length": lambda success, length, max_steps, progress: -length / max_steps,
     "speed": lambda success, length, max_steps, progress: (1 - length / max_steps) if success else 0.0,
 }
-FRONT_OBJECTIVES = ("success", "discounted-success", "length", "speed")  # recomputable from success, length
+PROGRESS_OBJECTIVES = frozenset({"success-progress"})  # the objectives that read Env.progress()
+FRONT_OBJECTIVES = tuple(o for o in OBJECTIVES if o not in PROGRESS_OBJECTIVES)  # from success, length
 
 
 @functools.cache
