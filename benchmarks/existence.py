@@ -2,6 +2,7 @@
 
     python benchmarks/existence.py            # every pair, resumable; writes benchmarks/results/
     python benchmarks/existence.py --ship     # also copy golden tickets beside the bundled policies
+    python benchmarks/existence.py --plot-only  # redraw existence.png from existence.json
 
 One pair is a bundled policy on its task: flow (10 Euler steps), DDIM with 8 steps and DDIM
 with 2 steps (same weights). Each pair runs `find_golden_tickets` with the settings below into
@@ -14,12 +15,13 @@ seeds that no choice saw. Results: benchmarks/results/existence.{md,json,png}.
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
 import numpy as np
 from build_zoo import MT10
-from results_files import write_results
+from results_files import RESULTS, write_results
 
 from goldenticket.evaluation import Evaluator, judge
 from goldenticket.noise import Constant, Gaussian
@@ -160,7 +162,7 @@ def markdown(rows: list[dict], summary: dict, wall: float) -> str:
     return "\n".join(lines) + "\n"
 
 
-def figure(rows: list[dict], path: Path) -> None:
+def figure(rows: list[dict]):
     """Per pair, on the fresh seeds: base, zero ticket and best ticket (left); for the pairs with a
     weak base, the failure reduction against the 45% target (right)."""
     from matplotlib.figure import Figure
@@ -182,7 +184,7 @@ def figure(rows: list[dict], path: Path) -> None:
     left.set_yticks(y, labels, fontsize="small")
     left.set(xlabel=f"success on {FRESH} fresh held-out seeds", xlim=(-0.02, 1.02),
              title=f"Best ticket vs base and zero ticket (below the line: judged base <= {WEAK_BASE:.0%})")
-    left.legend(fontsize="small", loc="lower left")
+    left.legend(fontsize="small", loc="upper left")
     cut = [failure_reduction(r["fresh"], r["fresh"]["base"]) for r in weak]
     colors = ["goldenrod" if r["fresh"]["p_value"] < 0.05 else "0.6" for r in weak]
     right.barh(np.arange(len(weak)), cut, color=colors)
@@ -190,10 +192,14 @@ def figure(rows: list[dict], path: Path) -> None:
     right.axvline(float(np.mean(cut)), color="k", label=f"mean {np.mean(cut):.0%}")
     right.set_yticks(np.arange(len(weak)), [labels[rows.index(r)] for r in weak], fontsize="small")
     right.set(xlabel="failure reduction over the base (fresh seeds)",
-              title="Weak-base pairs (gold: significant on fresh seeds)")
+              title="Weak-base pairs\n(gold: significant on fresh seeds)")
     right.legend(fontsize="small")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    return fig
+
+
+def save_figure(rows: list[dict], path: Path) -> None:
+    figure(rows).savefig(path, dpi=90)
 
 
 def ship(summaries: list[dict]) -> int:
@@ -219,7 +225,12 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", choices=MT10, default=list(MT10), help="tasks")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--ship", action="store_true", help="copy golden tickets into the package")
+    parser.add_argument("--plot-only", action="store_true",
+                        help="redraw existence.png from the committed existence.json; run no episode")
     args = parser.parse_args()
+    if args.plot_only:
+        save_figure(json.loads((RESULTS / "existence.json").read_text())["pairs"], RESULTS / "existence.png")
+        return
     start, summaries = time.perf_counter(), []
     todo = pairs(args.only)
     for i, (task, policy) in enumerate(todo, 1):
@@ -233,7 +244,7 @@ def main() -> None:
         return
     record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
               "wall_time_s": round(wall)}
-    write_results("existence", record, markdown(rows, summary, wall), lambda path: figure(rows, path))
+    write_results("existence", record, markdown(rows, summary, wall), lambda path: save_figure(rows, path))
     if args.ship:
         print(f"Shipped {ship(summaries)} golden tickets into {BUNDLED_DIR}.")
 

@@ -168,8 +168,8 @@ def _evaluate_parser(sub) -> None:
                          "each arm's diversity (spread of executed actions from one initial state)")
     ev.add_argument("--epsilon", type=float, default=0.0,
                     help="with --mixture: fresh Gaussian noise instead of a ticket with this probability")
-    ev.add_argument("--plot", type=Path, default=Path("evaluate.png"),
-                    help="PNG of success with intervals per arm")
+    ev.add_argument("--plot", type=Path, default=None,
+                    help="write a PNG of success with intervals per arm to this file (default: none)")
     ev.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
 
 
@@ -366,15 +366,17 @@ def _run_search(cfg, out: Path) -> int:
 
 def _evaluate(args) -> int:
     from goldenticket.evaluation import p_value_note
+    from goldenticket.files import check_target
     from goldenticket.plots import arms_png
     from goldenticket.policies import find_ticket
     from goldenticket.report import verdict_text
     from goldenticket.workflow import arm_rows, evaluate_tickets
 
     paths = [find_ticket(ref) for ref in args.ticket]
-    folder = args.plot.parent
-    if args.plot.is_dir() or not folder.is_dir() or not os.access(folder, os.W_OK):
-        raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
+    if args.plot is not None:
+        check_target(args.plot)
+        if not args.plot.parent.is_dir() or not os.access(args.plot.parent, os.W_OK):
+            raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
     rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
                             args.allow_transfer, args.max_steps, args.success, args.backend, args.address,
                             args.mixture, args.epsilon)
@@ -386,7 +388,9 @@ def _evaluate(args) -> int:
         arms[f"mixture of {len(tickets)}{epsilon}"] = rows["mixture"]
     best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],
                key=lambda r: (r["success_rate"], -r["p_value"]))
-    arms_png(arms, args.plot, f"{args.policy} on {args.task}, seeds {args.seeds.start}:{args.seeds.stop}")
+    if args.plot is not None:
+        arms_png(arms, args.plot, f"{args.policy} on {args.task}, seeds {args.seeds.start}:{args.seeds.stop}",
+                 best=f"ticket {best['ticket_id']}")
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
@@ -394,7 +398,8 @@ def _evaluate(args) -> int:
         if args.mixture:
             print("diversity (RMS spread of executed actions across 5 noise streams from each of the first "
                   "10 seeds): " + ", ".join(f"{label} {r['diversity']:.3f}" for label, r in arms.items()))
-        print(f"Wrote {args.plot}.")
+        if args.plot is not None:
+            print(f"Wrote {args.plot}.")
     return 0
 
 

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from pathlib import Path
 
+from matplotlib.container import ErrorbarContainer
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from matplotlib.ticker import PercentFormatter
@@ -13,52 +15,92 @@ from goldenticket.files import write_atomic
 from goldenticket.report import gain_text, short_task
 
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
+ARMS = {"base": "base (Gaussian noise)", "zero ticket": "zero ticket", "golden": "golden ticket",
+        "ticket": "ticket, not golden"}
 
 
 def arms_png(rows: dict[str, dict], path: Path, title: str, what: str = "held-out success",
-             unit: str = "seeds") -> Path:
+             unit: str = "seeds", best: str | None = None) -> Path:
     """One row per arm (base, zero ticket, tickets): held-out success with its 95% Wilson
-    interval; golden tickets in gold, the base rate as a dashed line."""
-    fig = Figure(figsize=(7.5, 1.4 + 0.45 * len(rows)))
+    interval; golden tickets in gold, the base rate as a dashed line, the row labelled `best`
+    (the chosen ticket) starred and in bold."""
+    fig = Figure(figsize=(8.5, 1.4 + 0.45 * len(rows)))
     ax = fig.subplots()
     for y, (label, r) in enumerate(rows.items()):
         kind = label if label in COLORS else ("golden" if r.get("golden") else "ticket")
         rate = r["success_rate"]
         ax.errorbar(rate, y, xerr=[[rate - r["ci_low"]], [r["ci_high"] - rate]], fmt="o", capsize=4,
-                    color=COLORS[kind], label=kind if kind in ("golden", "ticket") else None)
-        ax.annotate(f"{rate:.1%}", (r["ci_high"], y), xytext=(6, -4), textcoords="offset points")
-    ax.axvline(rows["base"]["success_rate"], color=COLORS["base"], linestyle="--", linewidth=1)
+                    color=COLORS[kind], label=ARMS[kind])
+        ax.annotate(f"{rate:.1%}", (r["ci_high"], y), xytext=(9, -4), textcoords="offset points")
+    ax.axvline(rows["base"]["success_rate"], color=COLORS["base"], linestyle="--", linewidth=1,
+               label="base rate")
     ax.set_yticks(range(len(rows)), list(rows))
+    if best in rows:
+        _star(ax, rows[best]["success_rate"], list(rows).index(best), "chosen ticket")
+        ax.get_yticklabels()[list(rows).index(best)].set_fontweight("bold")
     ax.invert_yaxis()
     n = rows["base"]["n"]
-    ax.set(xlim=(0, 1.08), title=title, xlabel=f"{what}, 95% Wilson interval (n = {n} {unit})")
+    ax.set(xlim=(-0.03, 1.12), title=title, xlabel=f"{what}, 95% Wilson interval (n = {n} {unit})")
     ax.xaxis.set_major_formatter(PercentFormatter(1.0))
-    handles, labels = ax.get_legend_handles_labels()
-    if handles:
-        unique = dict(zip(labels, handles, strict=True))
-        ax.legend(unique.values(), unique.keys(), loc="upper left", bbox_to_anchor=(1.01, 1),
-                  fontsize="small")
+    _legend(ax)
     return _save(fig, path)
 
 
-def search_png(scores: list[float], episodes: list[int], path: Path, title: str) -> Path:
-    """Each ticket's mean search return in the order the search first tried it (marker area by
-    its episodes), with the best so far among tickets scored on the most episodes."""
-    fig = Figure(figsize=(7.5, 4))
+def search_png(scores: list[float], episodes: list[int], path: Path, title: str, *,
+               validated: Sequence[int] = (), judged: Sequence[int] = (),
+               base: tuple[float, str] | None = None) -> Path:
+    """Each ticket's search score (mean objective on the search seeds) in the order the search
+    first tried it, hollow if it ran fewer episodes than the most, and the best so far among
+    those with the most. Rings mark the tickets (indices) `validated` and `judged` on held-out
+    seeds, a star the first judged (the chosen one); `base` is (score, where it was measured)."""
+    fig = Figure(figsize=(9, 4.2))
     ax = fig.subplots()
     full = max(episodes, default=0)
-    ax.scatter(range(1, len(scores) + 1), scores, s=[8 + 40 * n / max(full, 1) for n in episodes],
-               alpha=0.5, color="tab:green", label="ticket (area: episodes)")
+    order = range(1, len(scores) + 1)
+    for n_full, face, label in ((True, "tab:green", f"ticket, {full} episodes"),
+                                (False, "none", "ticket, fewer episodes")):
+        shown = [i for i, n in enumerate(episodes) if (n == full) == n_full]
+        if shown:
+            ax.scatter([order[i] for i in shown], [scores[i] for i in shown], s=16, alpha=0.6,
+                       facecolors=face, edgecolors="tab:green", label=label)
+    ax.step(order, _best_so_far(scores, episodes, full), where="post", color="goldenrod",
+            label=f"best so far ({full} episodes)")
+    if base is not None:
+        ax.axhline(base[0], color=COLORS["base"], linestyle="--", linewidth=1,
+                   label=f"base policy on {base[1]}")
+    for marked, size, color, label in ((validated, 90, "black", "sent to validation"),
+                                       (judged, 200, "tab:purple", "judged on held-out seeds")):
+        if marked:
+            ax.scatter([order[i] for i in marked], [scores[i] for i in marked], s=size, facecolors="none",
+                       edgecolors=color, linewidths=1.2, label=label)
+    if judged:
+        _star(ax, order[judged[0]], scores[judged[0]], "chosen ticket (best held-out success)")
+    ax.set(title=title, xlabel="tickets, in the order tried", ylabel="search score (mean objective)",
+           ylim=(min(0, *scores) - 0.05, max(1, *scores) + 0.05))
+    _legend(ax)
+    return _save(fig, path)
+
+
+def _best_so_far(scores: list[float], episodes: list[int], full: int) -> list[float]:
+    """The running best score among tickets that ran `full` episodes (NaN before the first)."""
     best, running = [], float("-inf")
     for score, n in zip(scores, episodes, strict=True):
         running = max(running, score) if n == full else running
-        best.append(running if running > float("-inf") else None)
-    ax.step(range(1, len(best) + 1), [float("nan") if b is None else b for b in best], where="post",
-            color="goldenrod", label=f"best so far ({full} episodes)")
-    ax.set(title=title, xlabel="tickets, in the order tried", ylabel="mean search return",
-           ylim=(min(0, *scores) - 0.05, max(1, *scores) + 0.05))
-    ax.legend(loc="lower right", fontsize="small")
-    return _save(fig, path)
+        best.append(running if running > float("-inf") else float("nan"))
+    return best
+
+
+def _star(ax, x: float, y: float, label: str) -> None:
+    ax.scatter(x, y, marker="*", s=260, color=COLORS["golden"], edgecolors="black", linewidths=0.8,
+               zorder=4, label=label)
+
+
+def _legend(ax) -> None:
+    """The legend right of the axes, one entry per label, arms (error bars) first."""
+    entries = sorted(zip(*ax.get_legend_handles_labels(), strict=True),
+                     key=lambda entry: not isinstance(entry[0], ErrorbarContainer))
+    unique = {label: handle for handle, label in entries}
+    ax.legend(unique.values(), unique.keys(), loc="upper left", bbox_to_anchor=(1.01, 1), fontsize="small")
 
 
 def front_png(study: dict, path: Path) -> Path:

@@ -140,9 +140,17 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
         summary["front"] = [label for label in front["heldout"] if label not in ("base", "zero")]
     write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     title = f"{names.policy} on {names.task}"
-    arms_png(arm_rows(summary["base"], summary["zero"], summary["tickets"]), out / "verdict.png", title)
+    arms_png(arm_rows(summary["base"], summary["zero"], summary["tickets"]), out / "verdict.png", title,
+             best=f"ticket {summary['best']['ticket_id']}")
+    index = {id(c): i for i, c in enumerate(result.candidates)}
+    top = {_ticket(cfg, names, result, c, search_seeds, expand).id: index[id(c)]
+           for c in _top(result, cfg, len(optimizer.seeds))}
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
-               out / "search.png", f"{cfg.method} search: {title}")
+               out / "search.png", f"{cfg.method} search: {title}",
+               validated=list(top.values()) if cfg.validation() else [],
+               judged=[top[t["ticket_id"]] for t in summary["tickets"]],
+               base=(float(np.mean([r.ret for r in judged["base"].results])),
+                     f"held-out seeds {span[0]}..{span[1]}"))
     return summary
 
 

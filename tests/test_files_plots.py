@@ -1,0 +1,163 @@
+"""Outputs replace only regular files, `evaluate` draws only where asked, and the pictures say
+what they show."""
+
+import json
+import os
+import socket
+import stat
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goldenticket import plots
+from goldenticket.cli import main
+from goldenticket.errors import UserError
+from goldenticket.files import write_atomic
+from goldenticket.workflow import SearchConfig, find_golden_tickets
+
+HERE = Path(__file__).parent
+BYO = ["--policy", "byo_example:make_policy", "--task", "byo_example:make_env", "--max-steps", "10"]
+
+
+def _socket(path: Path) -> None:
+    with socket.socket(socket.AF_UNIX) as s:
+        s.bind(str(path))
+
+
+def _link_to_file(path: Path) -> None:
+    (path.parent / "real.txt").write_text("kept")
+    path.symlink_to(path.parent / "real.txt")
+
+
+def _link_to_fifo(path: Path) -> None:  # stands for a link to a device
+    os.mkfifo(path.parent / "fifo")
+    path.symlink_to(path.parent / "fifo")
+
+
+@pytest.mark.parametrize("make", [os.mkfifo, os.mkdir, _socket, _link_to_file, _link_to_fifo],
+                         ids=["fifo", "folder", "socket", "link-to-file", "link-to-fifo"])
+def test_write_atomic_refuses_what_is_not_a_regular_file(tmp_path, make):
+    target = tmp_path / "out.png"
+    make(target)
+    before = {p.name: (p.lstat().st_mode, p.is_symlink()) for p in tmp_path.iterdir()}
+    with pytest.raises(UserError, match=str(target)):
+        write_atomic(target, b"picture")
+    assert {p.name: (p.lstat().st_mode, p.is_symlink()) for p in tmp_path.iterdir()} == before
+    if (tmp_path / "real.txt").exists():
+        assert (tmp_path / "real.txt").read_text() == "kept"
+
+
+def test_write_atomic_replaces_a_regular_file(tmp_path):
+    target = tmp_path / "out.txt"
+    target.write_text("old")
+    write_atomic(target, "new")
+    assert target.read_text() == "new" and stat.S_ISREG(target.lstat().st_mode)
+    assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+def test_evaluate_refuses_a_fifo_as_plot_in_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.syspath_prepend(str(HERE))
+    fifo = tmp_path / "e.png"
+    os.mkfifo(fifo)
+    code = main(["evaluate", *BYO, "--seeds", "1000000:1000003", "--workers", "1", "--plot", str(fifo)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and str(fifo) in err
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)
+
+
+def test_evaluate_draws_no_picture_unless_asked(tmp_path, capsys, monkeypatch):
+    monkeypatch.syspath_prepend(str(HERE))
+    monkeypatch.chdir(tmp_path)
+    assert main(["evaluate", *BYO, "--seeds", "1000000:1000003", "--workers", "1"]) == 0
+    assert list(tmp_path.iterdir()) == [] and "Wrote" not in capsys.readouterr().out
+    assert main(["evaluate", *BYO, "--seeds", "1000000:1000003", "--workers", "1", "--plot", "v.png"]) == 0
+    assert (tmp_path / "v.png").read_bytes().startswith(b"\x89PNG")
+
+
+@pytest.fixture
+def drawn(monkeypatch) -> list:
+    """Every figure the plots module saves, in order (nothing is written)."""
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or path)
+    return figures
+
+
+def _rate(p: float, **tests) -> dict:
+    return {"success_rate": p, "ci_low": p - 0.1, "ci_high": p + 0.1, "n": 20} | tests
+
+
+def _legend(ax) -> list[str]:
+    return [t.get_text() for t in ax.get_legend().get_texts()]
+
+
+def _points(ax, label: str) -> list[tuple]:
+    return [tuple(p) for c in ax.collections if c.get_label() == label for p in c.get_offsets()]
+
+
+def test_verdict_legend_names_every_arm_and_the_base_line_and_stars_the_chosen_ticket(tmp_path, drawn):
+    rows = {"base": _rate(0.5), "zero ticket": _rate(0.55, p_value=0.4, golden=False),
+            "ticket aaa": _rate(0.8, p_value=0.01, golden=True),
+            "ticket bbb": _rate(0.6, p_value=0.3, golden=False)}
+    plots.arms_png(rows, tmp_path / "v.png", "title", best="ticket bbb")
+    ax = drawn[0].axes[0]
+    assert _legend(ax) == ["base (Gaussian noise)", "zero ticket", "golden ticket", "ticket, not golden",
+                           "base rate", "chosen ticket"]
+    assert [t.get_text() for t in ax.get_yticklabels() if t.get_fontweight() == "bold"] == ["ticket bbb"]
+    assert _points(ax, "chosen ticket") == [(0.6, 3)]
+
+
+def test_verdict_without_zero_ticket_or_best_draws_what_it_has(tmp_path):
+    rows = {"base": _rate(0.5), "ab12": _rate(0.7, p_value=0.02, golden=True)}
+    assert plots.arms_png(rows, tmp_path / "v.png", "session").read_bytes().startswith(b"\x89PNG")
+
+
+def test_search_picture_marks_validated_judged_and_chosen_tickets_and_the_base(tmp_path, drawn):
+    scores = [0.2, 0.9, 0.5, 0.7, 0.6, 0.8]
+    plots.search_png(scores, [5] * 6, tmp_path / "s.png", "title", validated=[1, 3, 5], judged=[3, 1],
+                     base=(0.4, "held-out seeds 1000000..1000009"))
+    ax = drawn[0].axes[0]
+    assert ax.get_ylabel().startswith("search score")
+    assert _legend(ax) == ["ticket, 5 episodes", "best so far (5 episodes)",
+                           "base policy on held-out seeds 1000000..1000009", "sent to validation",
+                           "judged on held-out seeds", "chosen ticket (best held-out success)"]
+    assert _points(ax, "sent to validation") == [(2, 0.9), (4, 0.7), (6, 0.8)]
+    assert _points(ax, "judged on held-out seeds") == [(4, 0.7), (2, 0.9)]
+    assert _points(ax, "chosen ticket (best held-out success)") == [(4, 0.7)]
+
+
+def test_search_picture_tells_tickets_with_fewer_episodes_apart(tmp_path, drawn):
+    plots.search_png([0.9, 0.3, 0.5], [2, 4, 4], tmp_path / "s.png", "title")
+    ax = drawn[0].axes[0]
+    assert _legend(ax) == ["ticket, 4 episodes", "ticket, fewer episodes", "best so far (4 episodes)"]
+    assert _points(ax, "ticket, fewer episodes") == [(1, 0.9)]
+    assert np.array_equal(ax.lines[0].get_ydata(), [np.nan, 0.3, 0.5], equal_nan=True)
+
+
+def test_search_marks_the_tickets_the_run_validated_and_judged(tmp_path, drawn, monkeypatch):
+    monkeypatch.syspath_prepend(str(HERE))
+    cfg = SearchConfig("byo_example:make_policy", "byo_example:make_env", method="rs", budget=30,
+                       search_seeds=3, validation_seeds=3, heldout=5, top_k=2, workers=1, max_steps=10)
+    summary = find_golden_tickets(cfg, tmp_path)
+    verdict, search = (figure.axes[0] for figure in drawn)
+    best = summary["best"]
+    assert [t.get_text() for t in verdict.get_yticklabels() if t.get_fontweight() == "bold"] == [
+        f"ticket {best['ticket_id']}"]
+    assert len(_points(search, "sent to validation")) == 3 * cfg.top_k
+    assert [y for _, y in _points(search, "judged on held-out seeds")] == [
+        t["search_score"] for t in summary["tickets"]]
+    assert [y for _, y in _points(search, "chosen ticket (best held-out success)")] == [best["search_score"]]
+    base_line = next(line for line in search.lines if line.get_label().startswith("base policy"))
+    assert base_line.get_ydata()[0] == summary["base"]["success_rate"]  # objective "success"
+
+
+def test_existence_figure_titles_fit_in_the_picture(monkeypatch):
+    monkeypatch.syspath_prepend(str(HERE.parent / "benchmarks"))
+    import existence
+
+    record = json.loads((HERE.parent / "benchmarks" / "results" / "existence.json").read_text())
+    fig = existence.figure(record["pairs"])
+    fig.draw_without_rendering()
+    for ax in fig.axes:
+        box = ax.title.get_window_extent()
+        assert box.x0 >= 0 and box.x1 <= fig.bbox.x1, ax.get_title()
