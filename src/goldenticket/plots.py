@@ -38,9 +38,9 @@ def arms_png(rows: dict[str, dict], path: Path, title: str, what: str = "held-ou
     if best in rows:
         _star(ax, rows[best]["success_rate"], list(rows).index(best), "chosen ticket")
         ax.get_yticklabels()[list(rows).index(best)].set_fontweight("bold")
-    ax.invert_yaxis()
-    n = rows["base"]["n"]
-    ax.set(xlim=(-0.03, 1.12), title=title, xlabel=f"{what}, 95% Wilson interval (n = {n} {unit})")
+    n = rows["base"]["n"]  # the limits leave room for a marker at 0%, a "100.0%" label, the end rows
+    ax.set(xlim=(-0.03, 1.2), ylim=(len(rows) - 0.5, -0.5), xticks=[i / 5 for i in range(6)],
+           title=title, xlabel=f"{what}, 95% Wilson interval (n = {n} {unit})")
     ax.xaxis.set_major_formatter(PercentFormatter(1.0))
     _legend(ax)
     return _save(fig, path)
