@@ -3,12 +3,16 @@
 import json
 import os
 import re
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
+from concurrent.futures import ThreadPoolExecutor
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,7 +20,7 @@ import pytest
 from goldenticket.errors import UserError
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.rollout import Engine, Episode, rollout
-from goldenticket.session import Plan, ScoreConflict, Session
+from goldenticket.session import Plan, ScoreConflict, Session, protocol
 from goldenticket.tasks import get_task
 from goldenticket.tickets import Ticket
 
@@ -29,16 +33,27 @@ def _plan(**kw) -> Plan:
     return Plan(**fields)
 
 
+def _client(folder, **kw):
+    """A test client of the app, calling it as a page served from 127.0.0.1:8765 would."""
+    from starlette.testclient import TestClient
+
+    from goldenticket.session.server import make_app
+
+    return TestClient(make_app(folder, **kw), base_url="http://127.0.0.1:8765")
+
+
 def test_protocol_scores_once_undoes_and_resumes(tmp_path):
     session = Session.new(tmp_path, _plan())
-    assert session.status() == {"scored": 0, "total": 15, "planned": 6, "phase": "search"}
+    assert session.status() == {"scored": 0, "total": 15, "planned": 6, "phase": "search", "due": 0,
+                                "last_scored": None}
     first = session.next()
     session.score(first.episode, True, "clean grasp")
     with pytest.raises(ScoreConflict, match="scored already"):
         session.score(first.episode, False)
-    with pytest.raises(ScoreConflict, match="not in the plan"):
+    with pytest.raises(UserError, match="not in the plan"):
         session.score(99, False)
-    assert session.undo() == first.episode and session.next().episode == first.episode
+    session.undo(first.episode)
+    assert session.next().episode == first.episode
     session.score(first.episode, True)
     assert Session(tmp_path).next().episode == first.episode + 1  # a new process resumes
     with pytest.raises(UserError, match="already planned"):
@@ -79,12 +94,8 @@ def test_scene_ids_pair_the_confirm_episodes(tmp_path):
 
 
 def test_http_api_answers_and_refuses_clearly(tmp_path):
-    from starlette.testclient import TestClient
-
-    from goldenticket.session.server import make_app
-
     Session.new(tmp_path, _plan())
-    client = TestClient(make_app(tmp_path))
+    client = _client(tmp_path)
     due = client.get("/api/next").json()
     assert len(due["noise"]) == 8 and due["gaussian_seed"] is None
     assert client.post("/api/score", json={"episode": due["episode"], "success": True}).status_code == 200
@@ -93,11 +104,12 @@ def test_http_api_answers_and_refuses_clearly(tmp_path):
                           ([1], "JSON object"), ({"episode": 1, "success": True, "note": 3}, "'note'")):
         response = client.post("/api/score", json=body)
         assert response.status_code == 400 and message in response.json()["error"]
-    assert client.post("/api/score", content=b"{not json").status_code == 400
+    assert client.post("/api/score", content=b"{not json",
+                       headers={"Content-Type": "application/json"}).status_code == 400
     status = client.get("/api/status").json()
     assert status["scored"] == 1 and status["due"] == due["episode"] + 1 and "ticket_id" not in status
     assert "Score the episode" in client.get("/").text
-    gated = TestClient(make_app(tmp_path, token="s3cret"))
+    gated = _client(tmp_path, token="s3cret")
     assert gated.get("/api/status").status_code == 401
     assert gated.get("/api/status?token=s3cret").status_code == 200
     assert gated.get("/api/status", headers={"Authorization": "Bearer s3cret"}).status_code == 200
@@ -184,6 +196,7 @@ def test_the_terminal_scorer_scores_undoes_and_stops(tmp_path, capsys):
     score_in_terminal(Session(tmp_path), lambda prompt: next(answers))
     out = capsys.readouterr().out
     assert "score of episode 1 removed" in out and "Fisher's exact test" in out and "base" in out
+    assert (tmp_path / "summary.json").is_file()
 
 
 def test_session_commands_refuse_bad_input_in_one_line(tmp_path, capsys):
@@ -256,3 +269,172 @@ def test_a_damaged_session_file_is_one_clear_error(tmp_path):
     sqlite3.connect(other / "session.sqlite").execute("CREATE TABLE t (x)").connection.commit()
     with pytest.raises(UserError, match="not a goldenticket session"):
         Session(other)
+
+
+def test_other_sites_can_neither_score_nor_undo_nor_read_the_arm(tmp_path):
+    Session.new(tmp_path, _plan())
+    client = _client(tmp_path)
+    assert client.post("/api/score", json={"episode": 0, "success": True}).status_code == 200
+    evil, text = {"Origin": "http://evil.example"}, {"Content-Type": "text/plain"}
+    score = json.dumps({"episode": 1, "success": True})
+    attacks = [client.post("/api/score", content=score, headers=evil | text),  # a cross-site fetch
+               client.post("/api/score", json={"episode": 1, "success": True}, headers=evil),
+               client.post("/api/undo", data={"episode": "0"}, headers=evil),  # a cross-site form
+               client.post("/api/score", content=score, headers=text),  # no Origin, not JSON
+               client.post("/api/undo", data={"episode": "0"}),
+               client.get("/api/next", headers={"Host": "evil.example:8765"})]  # DNS rebinding
+    assert [r.status_code for r in attacks] == [403, 403, 403, 415, 415, 403]
+    assert all(r.json()["error"] for r in attacks)
+    assert client.get("/api/status").json()["scored"] == 1
+    same_site = client.post("/api/score", content=score, headers={"Origin": "http://127.0.0.1:8765",
+                                                                   "Content-Type": "application/json"})
+    assert same_site.status_code == 200 and client.get("/api/status").json()["scored"] == 2
+    big = client.post("/api/score", content=b" " * (64 * 1024 + 1),
+                      headers={"Content-Type": "application/json"})
+    assert big.status_code == 413 and "64 KiB" in big.json()["error"]
+    for response in (client.get("/"), client.get("/api/status"), attacks[0]):
+        assert response.headers["x-frame-options"] == "DENY"
+        assert "frame-ancestors 'none'" in response.headers["content-security-policy"]
+        assert response.headers["x-content-type-options"] == "nosniff"
+
+
+def test_only_the_due_episode_is_scored(tmp_path):
+    session = Session.new(tmp_path, _plan())
+    with pytest.raises(ScoreConflict, match="not due") as refused:
+        session.score(1, True)
+    assert refused.value.details == {"due": 0}
+    response = _client(tmp_path).post("/api/score", json={"episode": 2, "success": True})
+    assert response.status_code == 409 and response.json()["due"] == 0
+    assert session.status()["scored"] == 0 and session.next().episode == 0
+
+
+def test_undo_names_its_episode_and_follows_the_order_of_entry(tmp_path, monkeypatch):
+    session = Session.new(tmp_path, _plan())
+    clock = iter([100.0, 50.0, 75.0])  # the wall clock steps back between scores
+    monkeypatch.setattr(protocol, "time", SimpleNamespace(time=lambda: next(clock)))
+    for episode in range(3):
+        session.score(episode, True)
+    with pytest.raises(ScoreConflict, match="not the last") as stale:
+        session.undo(1)
+    assert stale.value.details == {"last_scored": 2}
+    stale_http = _client(tmp_path).post("/api/undo", json={"episode": 0})
+    assert stale_http.status_code == 409 and stale_http.json()["last_scored"] == 2
+    session.undo(2)
+    assert _client(tmp_path).post("/api/undo", json={"episode": 1}).json()["undone"] == 1
+    assert [r["success"] for r in session.scores()[:3]] == [1, None, None]
+    assert session.status()["last_scored"] == 0
+
+
+def test_concurrent_undos_of_one_episode_remove_one_score(tmp_path):
+    session = Session.new(tmp_path, _plan())
+    for episode in range(4):
+        session.score(episode, True)
+    start = threading.Barrier(20)
+
+    def undo(_) -> bool:
+        mine = Session(tmp_path)  # its own connection, as another process would have
+        start.wait()
+        try:
+            mine.undo(3)
+            return True
+        except ScoreConflict:
+            return False
+
+    with ThreadPoolExecutor(20) as pool:
+        assert sum(pool.map(undo, range(20))) == 1
+    assert session.status()["scored"] == 3
+
+
+def test_finalist_tickets_survive_a_failure_after_the_confirm_plan(tmp_path):
+    session = Session.new(tmp_path, _plan())
+    tickets = tmp_path / "tickets"
+    candidates = {r["arm"] for r in session.scores()}
+    for arm in candidates:  # something in the way of every ticket file
+        (tickets / f"{arm}.safetensors").mkdir(parents=True)
+    for episode in range(6):
+        session.score(episode, episode % 2 == 0)
+    with pytest.raises((OSError, UserError)):
+        session.next()  # plans the confirm phase, then cannot write the finalists
+    for arm in candidates:
+        (tickets / f"{arm}.safetensors").rmdir()
+    finalists = {r["arm"] for r in Session(tmp_path).scores() if r["phase"] == "confirm"} - {"base"}
+    assert len(finalists) == 2 and {p.stem for p in tickets.iterdir()} == finalists
+    shutil.rmtree(tickets)  # as if killed between the plan's commit and the files
+    Session(tmp_path)
+    assert {Ticket.load(p).id for p in tickets.iterdir()} == finalists
+
+
+def test_a_deleted_session_file_refuses_scores(tmp_path):
+    Session.new(tmp_path, _plan())
+    client = _client(tmp_path)
+    assert client.post("/api/score", json={"episode": 0, "success": True}).status_code == 200
+    (tmp_path / "session.sqlite").unlink()
+    response = client.post("/api/score", json={"episode": 1, "success": True})
+    assert response.status_code == 503 and "deleted" in response.json()["error"]
+
+
+def test_absurd_requests_and_a_full_disk_get_a_json_error(tmp_path):
+    Session.new(tmp_path, _plan())
+    client = _client(tmp_path)
+    huge = client.post("/api/score", json={"episode": 10**23, "success": True})
+    assert huge.status_code == 400 and "not in the plan" in huge.json()["error"]
+    nested = client.post("/api/score", content=b"[" * 30000 + b"]" * 30000,
+                         headers={"Content-Type": "application/json"})
+    assert nested.status_code == 400 and "JSON" in nested.json()["error"]
+    con = client.app.state.session._con  # the store may grow no more: a full disk, for SQLite
+    con.execute(f"PRAGMA max_page_count = {con.execute('PRAGMA page_count').fetchone()[0]}")
+    full = client.post("/api/score", json={"episode": 0, "success": True, "note": "x" * 60000})
+    assert full.status_code == 503 and "full" in full.json()["error"]
+    assert client.get("/api/status").json()["scored"] == 0
+
+
+def test_session_new_bounds_its_plan_in_one_line(tmp_path, capsys):
+    from goldenticket.cli import main
+
+    for flag, value in (("--confirm", "300000000"), ("--tickets", "1000000000"),
+                        ("--episodes-per-ticket", "1000000000")):
+        assert main(["session", "new", "--policy", POLICY, "--out", str(tmp_path / flag), flag, value]) == 2
+        assert not (tmp_path / flag).exists()
+    errors = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(errors) == 3 and all("at most 100000 episodes" in line for line in errors)
+    with pytest.raises(UserError, match="at most 100000 episodes"):
+        _plan(tickets=10**9)
+
+
+def test_a_finished_session_writes_its_verdict_beside_its_store(tmp_path):
+    session = Session.new(tmp_path / "cup", _plan())
+    while (due := session.next()) is not None:
+        session.score(due.episode, due.ticket_id != "base")
+    summary = json.loads((tmp_path / "cup" / "summary.json").read_text())
+    assert summary["verdict"] == session.verdict() and summary["session"] == "cup"
+    assert set(summary["tickets"]) == set(session.verdict()["arms"]) - {"base"}
+    assert (tmp_path / "cup" / "verdict.png").read_bytes().startswith(b"\x89PNG")
+    status = _client(tmp_path / "cup").get("/api/status").json()
+    assert status["session"] == "cup" and status["policy"] == "p"
+    session.undo(status["last_scored"])
+    assert session.status()["due"] is not None
+    assert not any((tmp_path / "cup" / name).exists() for name in ("summary.json", "verdict.png"))
+
+
+def test_the_verdict_plot_shows_every_marker_and_label_whole(tmp_path, monkeypatch):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from goldenticket import plots
+
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or path)
+    session = Session.new(tmp_path, _plan())
+    while (due := session.next()) is not None:  # the extremes: base 100%, finalists 0%
+        session.score(due.episode, due.ticket_id == "base")
+    fig = figures[-1]
+    fig.tight_layout()
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    ax = fig.axes[0]
+    inside = ax.get_window_extent(renderer)
+    for text in ax.texts:
+        box = text.get_window_extent(renderer)
+        assert inside.contains(box.x0, box.y0) and inside.contains(box.x1, box.y1), text.get_text()
+    for line in ax.lines:
+        if line.get_marker() not in ("None", None, ""):
+            whole = inside.padded(-line.get_markersize() * fig.dpi / 72 / 2)  # the marker's radius
+            assert all(whole.contains(x, y) for x, y in ax.transData.transform(line.get_xydata()))

@@ -1,5 +1,5 @@
 """The operator page as a person uses it: headless Chromium (Debian's) clicks through a session,
-and the server is killed with SIGKILL and restarted half-way."""
+the server is killed with SIGKILL and restarted half-way, and its store vanishes for a moment."""
 
 import os
 import shutil
@@ -36,6 +36,7 @@ def _shows(chrome, text: str) -> None:
 
 def test_an_operator_scores_a_session_in_the_browser(tmp_path, browser):
     from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
 
     Session.new(tmp_path, _plan(tickets=2, episodes_per_ticket=2, confirm=2))  # 4 + 6 episodes
     port = _free_port()
@@ -43,11 +44,13 @@ def test_an_operator_scores_a_session_in_the_browser(tmp_path, browser):
     try:
         browser.get(f"http://127.0.0.1:{port}/")
         _shows(browser, "Episode 0")
+        _shows(browser, f"Session {tmp_path.name}, policy p")
         browser.find_element(By.ID, "note").send_keys("clean grasp")
         browser.find_element(By.ID, "success").click()
         _shows(browser, "Episode 1")
         browser.find_element(By.TAG_NAME, "body").send_keys("f")  # keyboard shortcut
         _shows(browser, "Episode 2")
+        assert browser.find_element(By.ID, "undo").text == "Undo the score of episode 1 (U)"
         browser.find_element(By.ID, "undo").click()
         _shows(browser, "Score of episode 1 removed")
         browser.find_element(By.ID, "failure").click()
@@ -58,14 +61,22 @@ def test_an_operator_scores_a_session_in_the_browser(tmp_path, browser):
         browser.refresh()
         _shows(browser, "Episode 2")
         _shows(browser, "2 of 10 episodes scored")
+        (tmp_path / "session.sqlite").rename(tmp_path / "away.sqlite")  # the store vanishes: the page says so
+        browser.find_element(By.ID, "success").click()
+        _shows(browser, "session.sqlite was deleted or replaced while in use")
+        (tmp_path / "away.sqlite").rename(tmp_path / "session.sqlite")
         for episode in range(2, 10):
             _shows(browser, f"Episode {episode}")
             browser.find_element(By.ID, "success" if episode % 3 else "failure").click()
         _shows(browser, "Session complete")
         _shows(browser, "Verdict")
         assert len(browser.find_elements(By.CSS_SELECTOR, "#verdict-table tr")) == 4  # header + 3 arms
+        assert not browser.find_element(By.ID, "instructions").is_displayed()
+        WebDriverWait(browser, 10).until(lambda c: c.execute_script(  # the plot is shown
+            "const img = document.querySelector('#verdict img'); return img.complete && img.naturalWidth"))
     finally:
         server.kill()
     scores = Session(tmp_path).scores()
     assert [s["success"] for s in scores[:2]] == [1, 0] and scores[0]["note"] == "clean grasp"
     assert all(s["success"] is not None for s in scores)
+    assert (tmp_path / "summary.json").is_file() and (tmp_path / "verdict.png").is_file()

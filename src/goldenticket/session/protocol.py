@@ -3,40 +3,55 @@
 Search: N random candidate tickets x K episodes, in a shuffled order. Confirm: the two
 candidates with the most search successes (ties: the earlier candidate) and the base policy,
 M episodes each, interleaved in a shuffled order so the operator cannot tell which arm runs.
-Every score is written the moment it is entered; the next episode is always the first
-unscored one, so a restart resumes where it stopped.
+Every score is written the moment it is entered; only the due episode (the first unscored one)
+can be scored, so a restart resumes where it stopped. The files beside the store (the
+finalists' tickets, and once complete summary.json and verdict.png) are derived from it and
+brought in line with it whenever the session is opened or asked what is due.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
+import os
 import sqlite3
 import time
-from dataclasses import dataclass
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.stats import fisher_exact
 
 from goldenticket.errors import UserError
+from goldenticket.files import write_atomic
 from goldenticket.stats import Rate, holm_adjust, paired_exact_test
 from goldenticket.tickets import Ticket
 
 FILE = "session.sqlite"
 BASE = "base"
+MAX_EPISODES = 100_000
 _SCHEMA = """
 CREATE TABLE plan (id INTEGER PRIMARY KEY CHECK (id = 0), value TEXT NOT NULL);
 CREATE TABLE arms (arm TEXT PRIMARY KEY, noise BLOB);
 CREATE TABLE episodes (
     episode INTEGER PRIMARY KEY, phase TEXT NOT NULL, arm TEXT NOT NULL,
-    success INTEGER, note TEXT, scene TEXT, scored_at REAL
+    success INTEGER, note TEXT, scene TEXT, scored_at REAL, entry INTEGER UNIQUE
 );
 """
 
 
 class ScoreConflict(UserError):
-    """The episode was scored already, or is not (yet) in the plan."""
+    """A score for an episode scored already or not yet due, or an undo of an episode that is
+    not the last one scored; `details` names the due or the last scored episode."""
+
+    def __init__(self, message: str, **details: int | None):
+        super().__init__(message)
+        self.details = details
+
+
+class StoreLost(UserError):
+    """session.sqlite was deleted or replaced while open: nothing more could be saved."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +63,21 @@ class Plan:
     episodes_per_ticket: int
     confirm: int
     seed: int
+
+    def __post_init__(self) -> None:
+        for name, value, least in (("tickets", self.tickets, 2), ("confirm", self.confirm, 1),
+                                   ("episodes-per-ticket", self.episodes_per_ticket, 1)):
+            if value < least:
+                why = " (the confirm phase takes the top 2)" if name == "tickets" else ""
+                raise UserError(f"--{name} must be at least {least}{why}, got {value}")
+        if self.episodes > MAX_EPISODES:
+            raise UserError(f"a session plans at most {MAX_EPISODES} episodes (tickets x episodes-per-ticket "
+                            f"+ 3 x confirm), got {self.episodes}")
+
+    @property
+    def episodes(self) -> int:
+        """Every episode of the session: N x K search, 3 x M confirm."""
+        return self.tickets * self.episodes_per_ticket + 3 * self.confirm
 
 
 @dataclass(frozen=True)
@@ -74,23 +104,19 @@ class Session:
         self.path = Path(folder) / FILE
         if not self.path.is_file():
             raise UserError(f"{folder}: no session here (create one with `goldenticket session new`)")
+        self._file = _identity(self.path)  # before connecting: a file swapped meanwhile is refused
         self._con = _connect(self.path)
         try:
             fields = json.loads(self._one("SELECT value FROM plan")[0])
         except (sqlite3.DatabaseError, TypeError):
             raise UserError(f"{self.path}: not a goldenticket session, or damaged") from None
         self.plan = Plan(**{**fields, "noise_shape": tuple(fields["noise_shape"])})
+        self.name = self.path.parent.resolve().name
+        self._refresh()
 
     @classmethod
     def new(cls, folder: str | Path, plan: Plan) -> Session:
         """Plan the search phase and write it; refuses a folder that holds a session already."""
-        for name, value in (("tickets", plan.tickets), ("episodes-per-ticket", plan.episodes_per_ticket),
-                            ("confirm", plan.confirm)):
-            if value < 1:
-                raise UserError(f"--{name} must be at least 1, got {value}")
-        if plan.tickets < 2:
-            raise UserError(f"--tickets must be at least 2 (the confirm phase takes the top 2), "
-                            f"got {plan.tickets}")
         path = Path(folder) / FILE
         if path.exists():
             raise UserError(f"{path} exists: a session is already planned there (serve or score it)")
@@ -112,10 +138,9 @@ class Session:
         return cls(folder)
 
     def next(self) -> NextEpisode | None:
-        """The first unscored episode (planning the confirm phase once search is scored), or None."""
-        self._plan_confirm_if_due()
-        row = self._one("SELECT episode FROM episodes WHERE success IS NULL ORDER BY episode LIMIT 1")
-        return None if row is None else self.episode(row[0])
+        """The due episode (planning the confirm phase once search is scored), or None when done."""
+        due = self._refresh()["due"]
+        return None if due is None else self.episode(due)
 
     def episode(self, episode: int) -> NextEpisode:
         """What the robot runs for one planned episode."""
@@ -125,45 +150,38 @@ class Session:
         return NextEpisode(episode, arm, self._noise(arm), None)
 
     def score(self, episode: int, success: bool, note: str = "", scene: str | None = None) -> None:
-        """Record one episode's outcome; ScoreConflict if it is scored already or not planned."""
-        with self._con:
-            cur = self._con.execute(
-                "UPDATE episodes SET success = ?, note = ?, scene = ?, scored_at = ? "
-                "WHERE episode = ? AND success IS NULL",
-                (int(bool(success)), note, scene, time.time(), episode))
-        if cur.rowcount == 0:
-            known = self._one("SELECT success FROM episodes WHERE episode = ?", (episode,))
-            why = "not in the plan" if known is None else "scored already"
-            raise ScoreConflict(f"episode {episode} is {why}")
+        """Record the due episode's outcome, committed at once; ScoreConflict (naming the due
+        episode) for any other."""
+        self._check_planned(episode)
+        self._plan_confirm_if_due()
+        with self._transaction() as con:
+            due = self._due()
+            if episode != due:
+                scored = self._one("SELECT success IS NOT NULL FROM episodes WHERE episode = ?", (episode,))
+                why = "scored already" if scored and scored[0] else "not due"
+                raise ScoreConflict(f"episode {episode} is {why}; the due episode is {due}", due=due)
+            con.execute("UPDATE episodes SET success = ?, note = ?, scene = ?, scored_at = ?, "
+                        "entry = (SELECT COALESCE(MAX(entry), 0) + 1 FROM episodes) WHERE episode = ?",
+                        (int(bool(success)), note, scene, time.time(), episode))
 
-    def undo(self) -> int | None:
-        """Unscore the most recently scored episode (and drop an unstarted confirm plan that
-        depended on it); returns its number, or None when nothing is scored."""
-        with self._con:
-            row = self._con.execute("SELECT episode, phase FROM episodes WHERE success IS NOT NULL "
-                                    "ORDER BY scored_at DESC, episode DESC LIMIT 1").fetchone()
-            if row is None:
-                return None
-            self._con.execute("UPDATE episodes SET success = NULL, note = NULL, scene = NULL, "
-                              "scored_at = NULL WHERE episode = ?", (row[0],))
-            if row[1] == "search":
-                self._con.execute("DELETE FROM episodes WHERE phase = 'confirm'")
-        if row[1] == "search":  # the finalists may change: their files are written again
-            shutil.rmtree(self.path.parent / "tickets", ignore_errors=True)
-        return row[0]
+    def undo(self, episode: int) -> None:
+        """Unscore `episode`, which must be the last score entered (and drop an unstarted confirm
+        plan that depended on it); ScoreConflict (naming the last scored episode) otherwise."""
+        self._check_planned(episode)
+        with self._transaction() as con:
+            last = self._last_scored()
+            if episode != last:
+                raise ScoreConflict(f"episode {episode} is not the last one scored; that is {last}",
+                                    last_scored=last)
+            con.execute("UPDATE episodes SET success = NULL, note = NULL, scene = NULL, scored_at = NULL, "
+                        "entry = NULL WHERE episode = ?", (episode,))
+            if self._one("SELECT phase FROM episodes WHERE episode = ?", (episode,))[0] == "search":
+                con.execute("DELETE FROM episodes WHERE phase = 'confirm'")
 
     def status(self) -> dict:
-        """Scored and total episodes (the total grows by 3 x M when the confirm phase is planned),
-        and the verdict once every episode is scored."""
-        self._plan_confirm_if_due()
-        scored, planned = self._one("SELECT COUNT(success), COUNT(*) FROM episodes")
-        plan = self.plan
-        total = plan.tickets * plan.episodes_per_ticket + 3 * plan.confirm
-        status = {"scored": scored, "total": total, "planned": planned,
-                  "phase": "confirm" if planned > plan.tickets * plan.episodes_per_ticket else "search"}
-        if scored == total:
-            status["verdict"] = self._verdict()
-        return status
+        """Scored and total episodes (planned grows by 3 x M when the confirm phase is planned),
+        the due and the last scored episode, and the verdict once every episode is scored."""
+        return self._refresh()
 
     def verdict(self) -> dict:
         """Confirm-phase success per arm with Wilson intervals, and each finalist's one-sided
@@ -174,6 +192,34 @@ class Session:
             return status["verdict"]
         raise UserError(f"the session is not finished: {status['scored']} of {status['total']} "
                         "episodes scored")
+
+    def scores(self) -> list[dict]:
+        """Every planned episode with its score so far and its place in the order of entry (arm
+        names included: for the record, not for the operator's screen)."""
+        self._refresh()
+        cols = ("episode", "phase", "arm", "success", "note", "scene", "scored_at", "entry")
+        return [dict(zip(cols, r, strict=True)) for r in
+                self._con.execute(f"SELECT {', '.join(cols)} FROM episodes ORDER BY episode")]
+
+    def _refresh(self) -> dict:
+        """Plan the confirm phase if due, bring the derived files in line with the store, and
+        return the status."""
+        self._check_store()
+        self._plan_confirm_if_due()
+        self._save_tickets()
+        status = self._status()
+        self._save_verdict(status.get("verdict"))
+        return status
+
+    def _status(self) -> dict:
+        scored, planned = self._one("SELECT COUNT(success), COUNT(*) FROM episodes")
+        search = self.plan.tickets * self.plan.episodes_per_ticket
+        status = {"scored": scored, "total": self.plan.episodes, "planned": planned,
+                  "phase": "confirm" if planned > search else "search", "due": self._due(),
+                  "last_scored": self._last_scored()}
+        if scored == self.plan.episodes:
+            status["verdict"] = self._verdict()
+        return status
 
     def _verdict(self) -> dict:
         rows = self._con.execute("SELECT arm, success, scene FROM episodes WHERE phase = 'confirm' "
@@ -203,34 +249,98 @@ class Session:
         return {"arms": arms, "note": f"p-values: {used}; one-sided, finalist better than base, "
                                       "Holm-adjusted over the 2 finalists; 'golden' means p < 0.05"}
 
-    def scores(self) -> list[dict]:
-        """Every planned episode with its score so far (arm names included: for the record, not
-        for the operator's screen)."""
-        self._plan_confirm_if_due()
-        cols = ("episode", "phase", "arm", "success", "note", "scene", "scored_at")
-        return [dict(zip(cols, r, strict=True)) for r in
-                self._con.execute(f"SELECT {', '.join(cols)} FROM episodes ORDER BY episode")]
-
     def _plan_confirm_if_due(self) -> None:
-        plan = self.plan
-        with self._con:
-            left, confirm = self._con.execute("SELECT SUM(success IS NULL AND phase = 'search'), "
-                                              "SUM(phase = 'confirm') FROM episodes").fetchone()
-            if left or confirm:
+        if not self._confirm_due():
+            return
+        with self._transaction() as con:
+            if not self._confirm_due():  # another process planned it meanwhile
                 return
-            wins = dict(self._con.execute("SELECT arm, SUM(success) FROM episodes WHERE phase = 'search' "
-                                          "GROUP BY arm").fetchall())
-            candidates = [a for (a,) in self._con.execute("SELECT arm FROM arms ORDER BY rowid") if a in wins]
-            top = sorted(candidates, key=lambda a: -wins[a])[:2]  # stable: ties keep candidate order
-            arms = [arm for arm in (*top, BASE) for _ in range(plan.confirm)]
-            np.random.default_rng([plan.seed, 1]).shuffle(arms)
-            start = plan.tickets * plan.episodes_per_ticket  # the same rows from any process that plans
-            self._con.executemany("INSERT OR IGNORE INTO episodes (episode, phase, arm) "
-                                  "VALUES (?, 'confirm', ?)", [(start + i, a) for i, a in enumerate(arms)])
-        for arm in top:  # the finalists as ticket files, ready to deploy once the verdict is in
-            meta = {"policy": plan.policy, "policy_fingerprint": plan.policy_fingerprint,
-                    "session_search": {"successes": int(wins[arm]), "episodes": plan.episodes_per_ticket}}
-            Ticket(self._noise(arm), meta).save(self.path.parent / "tickets" / f"{arm}.safetensors")
+            wins = self._search_successes()
+            top = sorted(wins, key=lambda a: -wins[a])[:2]  # stable: ties keep candidate order
+            arms = [arm for arm in (*top, BASE) for _ in range(self.plan.confirm)]
+            np.random.default_rng([self.plan.seed, 1]).shuffle(arms)
+            start = self.plan.tickets * self.plan.episodes_per_ticket
+            con.executemany("INSERT INTO episodes (episode, phase, arm) VALUES (?, 'confirm', ?)",
+                            [(start + i, a) for i, a in enumerate(arms)])
+
+    def _confirm_due(self) -> bool:
+        left, confirm = self._one("SELECT SUM(success IS NULL AND phase = 'search'), "
+                                  "SUM(phase = 'confirm') FROM episodes")
+        return not left and not confirm
+
+    def _search_successes(self) -> dict[str, int]:
+        """Search successes per candidate, in candidate order."""
+        return dict(self._con.execute(
+            "SELECT arms.arm, SUM(success) FROM arms JOIN episodes USING (arm) WHERE phase = 'search' "
+            "GROUP BY arms.arm ORDER BY arms.rowid").fetchall())
+
+    def _finalists(self) -> list[str]:
+        return [a for (a,) in self._con.execute("SELECT DISTINCT arm FROM episodes WHERE phase = 'confirm' "
+                                                "AND arm != ? ORDER BY arm", (BASE,))]
+
+    def _save_tickets(self) -> None:
+        """The finalists as ticket files in tickets/, ready to deploy once the verdict is in; a
+        missing one is written again, one no longer a finalist (after an undo) removed."""
+        folder, finalists = self.path.parent / "tickets", self._finalists()
+        for old in folder.glob("*.safetensors"):
+            if old.stem not in finalists and old.is_file():
+                old.unlink()
+        wins = self._search_successes() if finalists else {}
+        for arm in finalists:
+            if not (folder / f"{arm}.safetensors").is_file():
+                meta = {"policy": self.plan.policy, "policy_fingerprint": self.plan.policy_fingerprint,
+                        "session_search": {"successes": int(wins[arm]),
+                                           "episodes": self.plan.episodes_per_ticket}}
+                Ticket(self._noise(arm), meta).save(folder / f"{arm}.safetensors")
+
+    def _save_verdict(self, verdict: dict | None) -> None:
+        """summary.json and verdict.png beside the store once the session is complete (none before)."""
+        summary, png = self.path.parent / "summary.json", self.path.parent / "verdict.png"
+        if verdict is None:
+            summary.unlink(missing_ok=True)
+            png.unlink(missing_ok=True)
+            return
+        text = json.dumps({"session": self.name, "plan": asdict(self.plan),
+                           "search_successes": self._search_successes(),
+                           "tickets": {a: f"tickets/{a}.safetensors" for a in self._finalists()},
+                           "verdict": verdict}, indent=2) + "\n"
+        if png.is_file() and summary.is_file() and summary.read_text() == text:
+            return
+        from goldenticket.plots import arms_png
+
+        arms_png(verdict["arms"], png, f"Session {self.name}: {self.plan.policy}",
+                 what="confirm-phase success", unit="episodes per arm")
+        write_atomic(summary, text)  # last: a summary.json that matches says verdict.png is written
+
+    @contextmanager
+    def _transaction(self) -> Iterator[sqlite3.Connection]:
+        """One write transaction, locked from its first read (BEGIN IMMEDIATE): no other process
+        writes between what it reads and what it writes."""
+        self._check_store()
+        self._con.execute("BEGIN IMMEDIATE")
+        with self._con:
+            yield self._con
+
+    def _check_store(self) -> None:
+        """StoreLost if session.sqlite is no longer the file opened: scores would vanish with it."""
+        try:
+            same = _identity(self.path) == self._file
+        except OSError:
+            same = False
+        if not same:
+            raise StoreLost(f"{self.path} was deleted or replaced while in use: scores can no longer be "
+                            "saved (put the file back, or restart from a copy)")
+
+    def _check_planned(self, episode: int) -> None:
+        if not 0 <= episode < self.plan.episodes:
+            raise UserError(f"episode {episode} is not in the plan (episodes 0 to {self.plan.episodes - 1})")
+
+    def _due(self) -> int | None:
+        return self._one("SELECT MIN(episode) FROM episodes WHERE success IS NULL")[0]
+
+    def _last_scored(self) -> int | None:
+        row = self._one("SELECT episode FROM episodes WHERE entry IS NOT NULL ORDER BY entry DESC LIMIT 1")
+        return None if row is None else row[0]
 
     def _noise(self, arm: str) -> np.ndarray:
         blob = self._one("SELECT noise FROM arms WHERE arm = ?", (arm,))[0]
@@ -251,6 +361,11 @@ def _pairs(arm: dict, base: dict, n_arm: int, n_base: int) -> tuple[list[bool], 
 
 def _ticket_id(noise: np.ndarray, plan: Plan) -> str:
     return Ticket(noise, {"policy_fingerprint": plan.policy_fingerprint}).id
+
+
+def _identity(path: Path) -> tuple[int, int]:
+    info = os.stat(path)
+    return info.st_dev, info.st_ino
 
 
 def _connect(path: Path) -> sqlite3.Connection:

@@ -7,32 +7,43 @@ from collections.abc import Callable
 from goldenticket.report import verdict_table
 from goldenticket.session.protocol import ScoreConflict, Session
 
-HELP = "s = success, f = failure (a note may follow: `f gripper slipped`), u = undo, q = quit"
+HELP = "s = success, f = failure (a note may follow: `f gripper slipped`), u = undo the last score, q = quit"
 
 
 def score_in_terminal(session: Session, read: Callable[[str], str] = input) -> int:
     """Ask for each due episode's outcome until the session is complete or the operator quits."""
     print(HELP)
-    while (status := session.status()) and (due := session.next()) is not None:
+    while (status := session.status())["due"] is not None:
+        due = status["due"]
         try:
-            answer = read(f"[{status['scored']}/{status['total']}] episode {due.episode}: ").strip()
+            answer = read(f"[{status['scored']}/{status['total']}] episode {due}: ").strip()
         except EOFError:  # input closed: stop as with q
             answer = "q"
         key, _, note = answer.partition(" ")
         if key.lower() in ("s", "f"):
             try:
-                session.score(due.episode, key.lower() == "s", note)
+                session.score(due, key.lower() == "s", note)
             except ScoreConflict as e:  # another tab or terminal scored it first
                 print(f"not saved: {e}")
         elif key.lower() == "u":
-            undone = session.undo()
-            print("nothing to undo" if undone is None else f"score of episode {undone} removed")
+            _undo(session, status["last_scored"])
         elif key.lower() == "q":
             print("stopped; every score entered is saved, run the same command to go on")
             return 0
         else:
             print(HELP)
-    verdict = status["verdict"]
-    print(verdict_table(verdict["arms"], title="arm"))
-    print(verdict["note"])
+    print(verdict_table(status["verdict"]["arms"], title="arm"))
+    print(status["verdict"]["note"])
+    print(f"Wrote summary.json and verdict.png in {session.path.parent}")
     return 0
+
+
+def _undo(session: Session, episode: int | None) -> None:
+    if episode is None:
+        print("nothing to undo")
+        return
+    try:
+        session.undo(episode)
+        print(f"score of episode {episode} removed")
+    except ScoreConflict as e:  # another tab or terminal scored or undid meanwhile
+        print(f"not undone: {e}")
