@@ -221,13 +221,15 @@ def _session_parser(sub) -> None:
     session = sub.add_parser("session", help="search on a real robot: a person scores each episode")
     session_sub = session.add_subparsers(dest="session_command", required=True, parser_class=_Parser)
     new = session_sub.add_parser("new", help="plan a session: N tickets x K episodes, then the top 2 "
-                                             "and the base on M episodes each, interleaved")
+                                             "and the base on M episodes each, interleaved; at most "
+                                             "100000 episodes in all (N x K + 3 x M)")
     new.add_argument("--policy", required=True,
                      help="the policy the robot runs (name, folder or import string)")
     new.add_argument("--out", type=Path, required=True, help="session folder")
-    new.add_argument("--tickets", type=int, default=6, help="candidate tickets (N)")
+    new.add_argument("--tickets", type=int, default=6, help="candidate tickets (N, at least 2)")
     new.add_argument("--episodes-per-ticket", type=int, default=25, help="search episodes per ticket (K)")
-    new.add_argument("--confirm", type=int, default=50, help="confirm episodes per finalist and base (M)")
+    new.add_argument("--confirm", type=int, default=50, help="confirm episodes per finalist and base (M); "
+                     "N x K + 3 x M is at most 100000")
     new.add_argument("--seed", type=_seed, default=0,
                      help="seed of the tickets, the order and the base noise")
     serve = session_sub.add_parser("serve", help="the operator page and the robot's HTTP API")
