@@ -34,7 +34,7 @@ def call(path, body=None):
 
 def main() -> None:
     policy, task = load_policy(POLICY), get_task(TASK)
-    folder = Path(tempfile.mkdtemp()) / "session"
+    folder = Path(tempfile.mkdtemp()) / "cup-push"
     Session.new(folder, Plan(POLICY, policy.fingerprint(), policy.noise_shape, 4, 10, 30, 0))
     server = subprocess.Popen([sys.executable, "-m", "goldenticket.cli", "session", "serve", str(folder),
                                "--port", str(PORT)])
