@@ -198,8 +198,8 @@ class _Guard:
             return 403, f"requests from {origin} are refused: use this server's own page"
         if self.token and not _has_token(request, self.token):
             return 401, "missing or wrong token"
-        if request.method == "POST" and request.headers.get("content-type", "").split(";")[0].strip() \
-                != "application/json":
+        media_type = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        if request.method == "POST" and media_type != "application/json":
             return 415, "send the body as JSON, with Content-Type: application/json"
         return None
 
