@@ -4,15 +4,17 @@ from __future__ import annotations
 
 
 def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
-    """One line per noise source: success rate, 95% Wilson interval, p-values, verdict."""
+    """One line per noise source: success rate, 95% Wilson interval, p-values (p vs zero only
+    when some source has one), verdict."""
     width = max(len(label) for label in [*rows, title])
-    lines = [f"{title:<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10} "
-             f"{'p vs zero':>10}  verdict"]
+    zero = any("p_vs_zero" in r for r in rows.values())  # none in a session: it has no zero-ticket arm
+    lines = [f"{title:<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10}"
+             + f" {'p vs zero':>10}" * zero + "  verdict"]
     for label, r in rows.items():
         p_base, p_zero = (f"{r[key]:.3g}" if key in r else "-" for key in ("p_value", "p_vs_zero"))
         ci = f"[{r['ci_low']:.1%}, {r['ci_high']:.1%}]"
-        lines.append(f"{label:<{width}} {r['success_rate']:>8.1%} {ci:>16} {r['n']:>5} {p_base:>10} "
-                     f"{p_zero:>10}  {r.get('verdict', '')}".rstrip())
+        lines.append((f"{label:<{width}} {r['success_rate']:>8.1%} {ci:>16} {r['n']:>5} {p_base:>10}"
+                      + f" {p_zero:>10}" * zero + f"  {r.get('verdict', '')}").rstrip())
     return "\n".join(lines)
 
 
