@@ -1,7 +1,7 @@
 """Shards of episodes on Ray actors: the cluster twin of `multiprocessing.Pool(workers,
 initializer, initargs).imap(fn, shards)`. Each actor runs the initializer once (it loads the
 policy and keeps its envs) and then one shard at a time; a shard whose actor dies is re-run on
-a new actor, so a lost machine costs only its in-flight shard. Requires `pip install ray`."""
+another actor, so a lost machine costs only its in-flight shards. Requires `pip install ray`."""
 
 from __future__ import annotations
 
@@ -17,6 +17,9 @@ RETRIES = 3  # new actors per shard before giving up
 class _Actor:
     def __init__(self, initializer: Callable, initargs: tuple):
         initializer(*initargs)
+
+    def ready(self) -> None:
+        """Returns once the actor has a CPU and its initializer has run."""
 
     def run(self, fn: Callable, shard):
         return fn(shard)
@@ -42,41 +45,58 @@ class RayPool:
         self._remote = ray.remote(num_cpus=1)(_Actor)
         self._initializer, self._initargs = initializer, initargs
         self.actors = [self._new_actor() for _ in range(workers)]
+        self._started: set = set()  # actors whose initializer has run
 
     def _new_actor(self):
         return self._remote.remote(self._initializer, self._initargs)
 
     def imap(self, fn: Callable, shards: Iterable) -> Iterator:
-        """`fn(shard)` for every shard on the actors, yielded in shard order as they finish."""
-        ray = self._ray
-        todo, idle = deque(enumerate(shards)), list(self.actors)
-        running, finished, tries, next_index = {}, {}, {}, 0
-        while todo or running:
+        """`fn(shard)` for every shard on the actors, yielded in shard order as they finish. An
+        actor takes shards once it has started, so one the cluster has no room for (a dead actor's
+        replacement once its node is gone, say) holds up nothing: the others run its shards."""
+        ray, todo = self._ray, deque(enumerate(shards))
+        total, idle = len(todo), [actor for actor in self.actors if actor in self._started]
+        # call -> (shard index, shard, actor); a start-up check has no shard and, for a replacement,
+        # the index of the shard its predecessor died on
+        calls = {actor.ready.remote(): (None, None, actor) for actor in set(self.actors) - self._started}
+        finished, tries, next_index = {}, {}, 0
+        while next_index < total:
             while todo and idle:
                 index, shard = todo.popleft()
                 actor = idle.pop()
-                running[actor.run.remote(fn, shard)] = (index, shard, actor)
-            (ref,), _ = ray.wait(list(running), num_returns=1)
-            index, shard, actor = running.pop(ref)
+                calls[actor.run.remote(fn, shard)] = (index, shard, actor)
+            (ref,), _ = ray.wait(list(calls), num_returns=1)
+            index, shard, actor = calls.pop(ref)
             try:
-                finished[index] = ray.get(ref)
-                idle.append(actor)
+                result = ray.get(ref)
             except ray.exceptions.RayTaskError as exc:  # the shard's own error, as if run here
                 raise exc.cause from None
             except ray.exceptions.RayActorError as exc:
-                tries[index] = tries.get(index, 0) + 1
-                if tries[index] > RETRIES:
-                    first_line = (str(exc).strip().splitlines() or ["no message"])[0]
-                    raise UserError(f"Ray actors died {RETRIES + 1} times running shard {index}: "
-                                    f"{first_line}") from None
-                self.actors[self.actors.index(actor)] = replacement = self._new_actor()
-                idle.append(replacement)
-                todo.appendleft((index, shard))
+                replacement = self._replace(actor, index, exc, tries)
+                calls[replacement.ready.remote()] = (index, None, replacement)
+                if shard is not None:
+                    todo.appendleft((index, shard))
+                continue
+            self._started.add(actor)
+            idle.append(actor)
+            if shard is not None:
+                finished[index] = result
             while next_index in finished:
                 yield finished.pop(next_index)
                 next_index += 1
 
+    def _replace(self, actor, index: int | None, exc: Exception, tries: dict):
+        """A new actor in place of `actor`, which died running (or, index None, starting) shard `index`."""
+        tries[index] = tries.get(index, 0) + 1
+        if tries[index] > RETRIES:
+            doing = "starting" if index is None else f"running shard {index}"
+            first_line = (str(exc).strip().splitlines() or ["no message"])[0]
+            raise UserError(f"Ray actors died {RETRIES + 1} times {doing}: {first_line}") from None
+        self._started.discard(actor)
+        self.actors[self.actors.index(actor)] = replacement = self._new_actor()
+        return replacement
+
     def terminate(self) -> None:
         for actor in self.actors:
             self._ray.kill(actor)
-        self.actors = []
+        self.actors, self._started = [], set()
