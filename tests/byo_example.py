@@ -1,5 +1,7 @@
 """A policy and environments written outside goldenticket, named by import strings in tests."""
 
+import multiprocessing as mp
+
 import gymnasium as gym
 import numpy as np
 import torch
@@ -44,6 +46,20 @@ class Unseeded(PointReach):
         return self._obs(), {}
 
 
+class UnseededInPools(PointReach):
+    """Ignores reset's seed inside a multiprocessing pool's worker processes only (as an env that
+    seeds from a per-process source can), so the single-process checks pass."""
+
+    def reset(self, seed=None, options=None):
+        in_pool = mp.current_process().name.startswith("SpawnPoolWorker")
+        return super().reset(seed=None if in_pool else seed, options=options)
+
+
+class BrokenStep(PointReach):
+    def step(self, action):
+        raise RuntimeError("the robot fell over")
+
+
 class Silent(PointReach):
     def step(self, action):
         obs, reward, terminated, truncated, _ = super().step(action)
@@ -74,6 +90,39 @@ class NaNActions(BiasedController):
         return super().act(obs, noise) * np.nan
 
 
+class RareNaN(BiasedController):
+    """NaN actions once the point is pushed past x = 1.2, a state few episodes reach (as a real
+    network can be non-finite on states it never saw)."""
+
+    def act(self, obs, noise):
+        actions = super().act(obs, noise)
+        actions[obs["pos"][:, 0] > 1.2] = np.nan
+        return actions
+
+
+class DtypeActions(BiasedController):
+    """Actions of another dtype than real numbers."""
+
+    def __init__(self, dtype):
+        self.dtype = dtype
+
+    def act(self, obs, noise):
+        return super().act(obs, noise).astype(self.dtype)
+
+
+class RaisingAct(BiasedController):
+    def act(self, obs, noise):
+        return obs["velocity"]
+
+
+class BadFingerprint(BiasedController):
+    def __init__(self, fingerprint):
+        self._fingerprint = fingerprint
+
+    def fingerprint(self):
+        return self._fingerprint()
+
+
 def make_env():
     return PointReach()
 
@@ -95,6 +144,18 @@ def within_reach(obs, info):
     return bool(np.linalg.norm(obs["pos"] - obs["goal"]) < 0.05)
 
 
+def broken_predicate(obs, info):
+    return obs["distance"] < 0.05
+
+
+def make_unseeded_in_pools_env():
+    return UnseededInPools()
+
+
+def make_broken_step_env():
+    return BrokenStep()
+
+
 def make_metaworld_reach():
     return SeededMetaWorld()
 
@@ -111,6 +172,34 @@ def make_wrong_shape_policy():
 
 def make_nan_policy():
     return NaNActions()
+
+
+def make_rare_nan_policy():
+    return RareNaN()
+
+
+def make_complex_policy():
+    return DtypeActions(np.complex128)
+
+
+def make_object_policy():
+    return DtypeActions(object)
+
+
+def make_str_policy():
+    return DtypeActions(str)
+
+
+def make_raising_policy():
+    return RaisingAct()
+
+
+def make_raising_fingerprint_policy():
+    return BadFingerprint(lambda: 1 / 0)
+
+
+def make_int_fingerprint_policy():
+    return BadFingerprint(lambda: 42)
 
 
 class TinyDenoiser(torch.nn.Module):

@@ -3,6 +3,7 @@ and the workers, with the same checks and results as the bundled ones."""
 
 import json
 import re
+import sqlite3
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -12,10 +13,11 @@ import numpy as np
 import pytest
 
 import goldenticket
+from goldenticket.cli import main
 from goldenticket.errors import UserError
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
-from goldenticket.rollout import Episode, rollout
+from goldenticket.rollout import NONFINITE, Episode, rollout
 from goldenticket.tasks import get_task, seeds_in
 
 HERE = Path(__file__).parent
@@ -125,3 +127,114 @@ def test_readme_example_runs_as_written(tmp_path):
     proc = subprocess.run([sys.executable, "unguarded.py"], cwd=tmp_path, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 1 and "if __name__ == '__main__':" in proc.stderr.splitlines()[-1]
+
+
+def _line_of(code: str) -> str:
+    """`byo_example.py:N`, N the line of byo_example.py holding `code`."""
+    lines = (HERE / "byo_example.py").read_text().splitlines()
+    return f"{HERE / 'byo_example.py'}:{next(i for i, line in enumerate(lines, 1) if code in line)}"
+
+
+def _error_line(capsys, argv: list[str]) -> str:
+    """Run the CLI here; its one error line (exit 2, no traceback)."""
+    sys.path.insert(0, str(HERE))
+    code = main(argv)
+    err = capsys.readouterr().err
+    errors = [line for line in err.splitlines() if "error" in line]
+    assert code == 2 and len(errors) == 1 and "Traceback" not in err, err
+    return errors[0]
+
+
+EVALUATE = ["evaluate", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env", "--seeds",
+            "1000000:1000004", "--max-steps", "30", "--workers", "1"]
+FAULTS = {  # the user's code at fault: (options replacing EVALUATE's, what its one line says)
+    "complex actions": (["--policy", "byo_example:make_complex_policy"], "actions of dtype complex128"),
+    "object actions": (["--policy", "byo_example:make_object_policy"], "actions of dtype object"),
+    "str actions": (["--policy", "byo_example:make_str_policy"], "actions of dtype <U"),
+    "act raises": (["--policy", "byo_example:make_raising_policy"],
+                   "policy 'biased-controller': act() failed at " + _line_of('obs["velocity"]') +
+                   ": KeyError: 'velocity'"),
+    "step raises": (["--task", "byo_example:make_broken_step_env"],
+                    f"step() failed at {_line_of('the robot fell over')}: RuntimeError: the robot fell over"),
+    "success predicate raises": (["--task", "byo_example:make_silent_env", "--success",
+                                  "byo_example:broken_predicate"],
+                                 "step() failed at " + _line_of('obs["distance"]') + ": KeyError:"),
+    "fingerprint raises": (["--policy", "byo_example:make_raising_fingerprint_policy"],
+                           f"fingerprint() failed at {_line_of('1 / 0')}: ZeroDivisionError"),
+    "fingerprint not a string": (["--policy", "byo_example:make_int_fingerprint_policy"],
+                                 "fingerprint() must return a string, got int"),
+}
+
+
+def _evaluate(*options: str) -> list[str]:
+    """EVALUATE with `options` (option, value, ...) in place of its own, or added."""
+    argv = list(EVALUATE)
+    for option, value in zip(options[::2], options[1::2], strict=True):
+        if option in argv:
+            argv[argv.index(option) + 1] = value
+        else:
+            argv += [option, value]
+    return argv
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+def test_a_fault_in_the_users_code_is_one_line_naming_it(capsys, fault):
+    options, says = FAULTS[fault]
+    assert says in _error_line(capsys, _evaluate(*options))
+
+
+def test_a_fault_in_a_worker_process_is_the_same_line_and_verbose_shows_its_traceback(capsys):
+    policy = ("--policy", "byo_example:make_raising_policy")
+    here = _error_line(capsys, _evaluate(*policy))
+    with ThreadPoolExecutor(2) as pool:
+        in_workers, verbose = pool.map(lambda a: _cli(*a), [_evaluate(*policy, "--workers", "2"),
+                                                             ["--verbose", *_evaluate(*policy)]])
+    assert in_workers.returncode == 2 and "Traceback" not in in_workers.stderr, in_workers.stderr
+    assert in_workers.stderr.splitlines()[-1] == here
+    assert verbose.returncode == 2 and verbose.stderr.splitlines()[-1] == here
+    assert "Traceback" in verbose.stderr and 'return obs["velocity"]' in verbose.stderr
+
+
+def test_a_policy_rarely_non_finite_gets_a_verdict_counting_those_episodes(capsys, tmp_path):
+    """Its rare non-finite episodes are failures, counted per arm in the table and summary.json;
+    more than --max-nonfinite of an arm's held-out episodes stops the run in one line."""
+    sys.path.insert(0, str(HERE))
+    argv = _evaluate("--policy", "byo_example:make_rare_nan_policy", "--seeds", "1000000:1000200")
+    assert main([*argv, "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert 0 < rows["base"]["nonfinite_episodes"] <= 0.1 * 200 and rows["zero"]["nonfinite_episodes"] >= 0
+    assert main(argv) == 0
+    header = capsys.readouterr().out.splitlines()[0]
+    assert "non-finite" in header
+    assert "more than --max-nonfinite 0 of them" in _error_line(capsys, [*argv, "--max-nonfinite", "0"])
+
+    summary = goldenticket.search("byo_example:make_rare_nan_policy", "byo_example:make_env", tmp_path,
+                                  max_steps=30, budget=160, heldout=200, validation_seeds=20, top_k=2,
+                                  workers=1)
+    assert summary["base"]["nonfinite_episodes"] == rows["base"]["nonfinite_episodes"]  # the same episodes
+    assert all("nonfinite_episodes" in t for t in summary["tickets"])
+
+
+def test_a_policy_always_non_finite_stops_at_its_first_heldout_shard(capsys, tmp_path):
+    line = _error_line(capsys, ["search", "--policy", "byo_example:make_nan_policy", "--task",
+                                "byo_example:make_env", "--max-steps", "30", "--heldout", "50", "--workers",
+                                "1", "--out", str(tmp_path)])
+    assert "NaN or infinite actions in 16 of the 50 held-out episodes of base" in line, line
+    assert "at step 0" in line
+    with sqlite3.connect(tmp_path / "run.sqlite") as con:
+        assert con.execute("SELECT count(*), min(cause) FROM episodes").fetchone() == (16, NONFINITE)
+
+
+def test_an_env_unseeded_only_in_pool_workers_stops_the_run_in_one_line(tmp_path):
+    """It passes the seed checks of one process and of a spawned one; the episodes' own initial
+    states, checked as they come back from the workers, give it away."""
+    argv = ["search", "--policy", "byo_example:make_policy", "--task",
+            "byo_example:make_unseeded_in_pools_env", "--max-steps", "30", "--budget", "40",
+            "--heldout", "20", "--validation-seeds", "0", "--top-k", "1"]
+    with ThreadPoolExecutor(2) as pool:
+        one, two = pool.map(lambda w: _cli(*argv, "--workers", w, "--out", str(tmp_path / w)), ["1", "2"])
+    assert one.returncode == 0, one.stderr  # in one process its seeds are kept
+    errors = [line for line in two.stderr.splitlines() if "error" in line]
+    assert two.returncode == 2 and len(errors) == 1 and "Traceback" not in two.stderr, two.stderr
+    assert re.search(r"reset\(seed=100000\d+\) does not fix the initial state in worker processes", errors[0])
+    assert not (tmp_path / "2" / "summary.json").exists()

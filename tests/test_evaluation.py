@@ -1,12 +1,18 @@
-import numpy as np
+import sys
+from pathlib import Path
 
+import numpy as np
+import pytest
+
+from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator, judge
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.rollout import Engine
+from goldenticket.rollout import NONFINITE, Engine
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
 
 POLICY, TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
+sys.path.insert(0, str(Path(__file__).parent))  # byo_example
 
 
 class CountingEngine(Engine):
@@ -33,3 +39,36 @@ def test_judge_pairs_every_source_with_the_base_on_the_same_seeds():
         judged = judge(Evaluator(engine), {"zero": Constant(np.zeros((8, 4), np.float32))}, seeds)
     assert judged["base"].p_value is None and judged["base"].rate.n == 6
     assert 0 <= judged["zero"].p_value <= 1 and judged["zero"].rate.n == 6
+
+
+def test_an_episode_that_begins_elsewhere_than_the_first_on_its_seed_stops_the_run_unrecorded(tmp_path):
+    """An env whose reset ignores the seed: each seed's first episode records its initial state
+    (in the store), and a later episode on that seed, in this run or a resumed one, stops it."""
+    seeds, task = seeds_in("heldout", 2), get_task("byo_example:make_unseeded_env", max_steps=5)
+    zero = Constant(np.zeros((4, 2), np.float32))
+    with Engine("byo_example:make_policy", task, shard_size=2) as engine:
+        Evaluator(engine, RunStore(tmp_path / "run.sqlite")).run([("base", Gaussian(), seeds)])
+        resumed = Evaluator(engine, RunStore(tmp_path / "run.sqlite"))
+        with pytest.raises(UserError, match=r"reset\(seed=1000000\) does not fix the initial state from one "
+                                            "episode to the next"):
+            resumed.run([("base", Gaussian(), seeds), ("zero", zero, seeds)])
+        with pytest.raises(UserError, match="does not fix the initial state"):  # no store: in memory
+            Evaluator(engine).run([("base", Gaussian(), seeds), ("base again", Gaussian(), seeds)])
+    assert {r.ticket_id for r in RunStore(tmp_path / "run.sqlite").episodes()} == {"base"}
+
+
+def test_a_policy_non_finite_on_too_many_heldout_episodes_stops_the_run_and_its_rerun(tmp_path):
+    task, seeds = get_task("byo_example:make_env", max_steps=5), seeds_in("heldout", 40)
+    with CountingEngine("byo_example:make_nan_policy", task, shard_size=8) as engine:
+        with pytest.raises(UserError, match="NaN or infinite actions in 8 of the 40 held-out episodes of "
+                                            "base, more than --max-nonfinite 0.1 of them"):
+            Evaluator(engine, RunStore(tmp_path / "run.sqlite")).run([("base", Gaussian(), seeds)])
+        assert engine.asked == 40  # one engine call, stopped after its first shard
+        rows = RunStore(tmp_path / "run.sqlite").episodes()
+        assert len(rows) == 8 and {r.cause for r in rows} == {NONFINITE}
+        with pytest.raises(UserError, match="in 8 of the 40"):  # the rerun stops before any episode runs
+            Evaluator(engine, RunStore(tmp_path / "run.sqlite")).run([("base", Gaussian(), seeds)])
+        assert engine.asked == 40
+        lenient = Evaluator(engine, RunStore(tmp_path / "run.sqlite"), max_nonfinite=1)
+        results = lenient.run([("base", Gaussian(), seeds)])[0]
+        assert len(results) == 40 and all(r.cause == NONFINITE and not r.success for r in results)

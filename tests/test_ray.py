@@ -81,4 +81,5 @@ def test_an_error_on_an_actor_is_one_line(tmp_path):
                           text=True, timeout=300)
     errors = [line for line in proc.stderr.splitlines() if "error" in line]
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
-    assert errors == ["goldenticket: error: policy 'biased-controller' returned NaN or infinite actions"]
+    assert len(errors) == 1 and errors[0].startswith(
+        "goldenticket: error: policy 'biased-controller' returned NaN or infinite actions in 4 of the 4 ")

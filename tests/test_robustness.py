@@ -3,6 +3,7 @@ and every failure is one clear line with exit code 2 (or 128 + signal for a stop
 
 import json
 import re
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -11,6 +12,9 @@ import time
 from pathlib import Path
 
 import pytest
+
+from goldenticket.cli import main
+from goldenticket.policies import BUNDLED_DIR
 
 SEARCH = ["search", "--policy", "metaworld/reach-v3/flow", "--task", "metaworld/reach-v3",
           "--method", "cem-racing", "--budget", "24", "--search-seeds", "5", "--validation-seeds", "3",
@@ -66,7 +70,7 @@ def reference(tmp_path_factory) -> dict:
     out = tmp_path_factory.mktemp("reference")
     proc = _run(out)
     assert proc.returncode == 0 and _recorded(out) == TOTAL
-    return {"numbers": _numbers(out), "stderr": proc.stderr}
+    return {"numbers": _numbers(out), "stderr": proc.stderr, "out": out}
 
 
 def test_progress_bars_never_count_past_their_total(reference):
@@ -166,6 +170,31 @@ def test_damaged_store_is_one_line(tmp_path, reference):
     data[2 * 4096 : 3 * 4096] = b"\xff" * 4096  # the third page: the episodes table
     store.write_bytes(bytes(data))
     assert "move it away" in _one_error_line(_run(tmp_path))
+
+
+@pytest.mark.parametrize("damage, says", [
+    ("UPDATE episodes SET ret = 'lots' WHERE rowid = 1", "non-numeric ret"),
+    ("UPDATE config SET value = 'not json'", "config is not JSON"),
+], ids=["return", "config"])
+def test_a_store_value_of_the_wrong_type_is_one_line(reference, tmp_path, damage, says):
+    store = tmp_path / "run.sqlite"
+    shutil.copy(reference["out"] / "run.sqlite", store)
+    with sqlite3.connect(store) as con:
+        con.execute(damage)
+    line = _one_error_line(_run(tmp_path))
+    assert says in line and f"{store}:" in line, line
+
+
+def test_a_truncated_policy_file_is_one_line(tmp_path, capsys):
+    folder = tmp_path / "policy"
+    shutil.copytree(BUNDLED_DIR / "metaworld/reach-v3/flow", folder)
+    weights = folder / "model.safetensors"
+    weights.write_bytes(weights.read_bytes()[:-100])
+    code = main(["evaluate", "--policy", str(folder), "--task", "metaworld/reach-v3",
+                 "--seeds", "1000000:1000002"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith(f"goldenticket: error: {weights}: not a valid safetensors file")
+    assert len(err.splitlines()) == 1, err
 
 
 @pytest.mark.parametrize("options", [{"--budget": "3", "--search-seeds": "20"},  # racing's 1st tier: 4

@@ -2,7 +2,7 @@ import numpy as np
 
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.policies import load_policy
-from goldenticket.rollout import Episode, rollout
+from goldenticket.rollout import NONFINITE, Episode, observation_digest, rollout
 from goldenticket.tasks import get_task, seeds_in
 
 
@@ -44,3 +44,44 @@ def test_only_objectives_that_read_progress_ask_the_env_for_it(monkeypatch):
 
     monkeypatch.setattr(MetaWorldEnv, "progress", unwanted)
     assert [r.ret for r in rollout(policy, task, episodes)] == [0.0, 0.0]
+
+
+class Poisoned:
+    """The bundled policy, whose actions are NaN for one observation (one state of one episode);
+    it keeps every observation it is called with."""
+
+    def __init__(self, policy, poison: np.ndarray | None = None):
+        self.policy, self.poison, self.seen = policy, poison, []
+        self.noise_shape, self.n_exec, self.name = policy.noise_shape, policy.n_exec, "poisoned"
+
+    def act(self, obs, noise):
+        self.seen += list(obs)
+        actions = self.policy.act(obs, noise)
+        if self.poison is not None:
+            actions[(obs == self.poison).all(axis=1)] = np.nan
+        return actions
+
+
+def test_a_nonfinite_action_ends_its_episode_as_a_failure_and_no_other():
+    policy, task = load_policy("metaworld/reach-v3/flow"), get_task("metaworld/reach-v3", max_steps=40)
+    episodes = [Episode(Gaussian(0), s) for s in seeds_in("heldout", 6)]
+    clean = Poisoned(policy)
+    before = rollout(clean, task, episodes, objective="speed", record_actions=True)
+    poison = clean.seen[3 * len(episodes) + 2]  # the 4th call's third row: an episode's mid-way state
+    after = rollout(Poisoned(policy, poison), task, episodes, objective="speed", record_actions=True)
+    hit = [i for i, r in enumerate(after) if r.cause == NONFINITE]
+    assert len(hit) == 1 and after[hit[0]].length == 3 * policy.n_exec < before[hit[0]].length
+    assert not after[hit[0]].success and after[hit[0]].ret == 0.0
+    assert np.array_equal(after[hit[0]].actions, before[hit[0]].actions[: after[hit[0]].length])
+    for i, (a, b) in enumerate(zip(after, before, strict=True)):
+        if i != hit[0]:  # bitwise the same episodes, executed actions included
+            assert (a.success, a.ret, a.length, a.cause) == (b.success, b.ret, b.length, None)
+            assert np.array_equal(a.actions, b.actions) and a.digest == b.digest
+
+
+def test_the_initial_observation_digest_names_the_state():
+    obs = get_task("metaworld/reach-v3").make_env().reset(1_000_000)
+    assert observation_digest(obs) == observation_digest(obs.copy())
+    assert observation_digest(obs) != observation_digest(np.nextafter(obs, np.inf))
+    as_dict = {"b": obs[:3], "a": obs}
+    assert observation_digest(as_dict) == observation_digest(dict(reversed(as_dict.items())))

@@ -1,10 +1,13 @@
+import json
 import sqlite3
+import struct
 
 import numpy as np
 import pytest
 from safetensors.numpy import save_file
 
 from goldenticket.errors import UserError
+from goldenticket.rollout import NONFINITE
 from goldenticket.store import EpisodeRow, RunStore
 from goldenticket.tickets import Ticket, zero_ticket
 
@@ -106,6 +109,38 @@ def test_load_bad_metadata(tmp_path):
     assert "JSON" in load_error(path)
 
 
+@pytest.mark.parametrize("metadata, says", [
+    ('{"tasks": 5}', "tasks must be a list of task names, got 5"),
+    ('{"tasks": "metaworld/reach-v3 + metaworld/push-v3", "task": "metaworld/reach-v3 + metaworld/push-v3"}',
+     "tasks must be a list"),  # a string would match any of its substrings
+    ('{"tasks": ["metaworld/reach-v3", 3], "task": "metaworld/reach-v3"}', "tasks must be a list"),
+    ('{"tasks": ["metaworld/reach-v3"]}', "has tasks but no task"),
+    ('{"task": ["metaworld/reach-v3"]}', "task must be a string, got list"),
+    ('{"policy_fingerprint": 7}', "policy_fingerprint must be a string, got int"),
+    ('{"max_steps": "150"}', "max_steps must be an integer > 0"),
+    ('{"success": 1}', "success must be an import string or null"),
+    ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+], ids=["tasks a number", "tasks a string", "tasks with a number", "tasks without task", "task a list",
+        "fingerprint a number", "max_steps a string", "success a number", "100k-deep JSON"])
+def test_load_metadata_of_the_wrong_types(tmp_path, metadata, says):
+    path = tmp_path / "t.safetensors"
+    save_file({"noise": noise()}, str(path), metadata={"goldenticket": metadata})
+    assert says in load_error(path)
+
+
+def test_load_checks_the_header_shape_before_reading_the_tensor(tmp_path):
+    """A header declaring 2^25 values over a sparse file (the file is as long as the header says,
+    but nothing is written): refused from the header, never read."""
+    path = tmp_path / "t.safetensors"
+    header = json.dumps({"noise": {"dtype": "F32", "shape": [2**13, 2**12], "data_offsets": [0, 2**27]}})
+    with path.open("wb") as f:
+        f.write(struct.pack("<Q", len(header)) + header.encode())
+        f.truncate(8 + len(header) + 2**27)
+    assert "holds more than the 16777216 values" in load_error(path)
+    assert "(8192, 4096) does not match the policy's expected shape (16, 4)" in load_error(
+        path, expected_shape=(16, 4))
+
+
 # --- run store -------------------------------------------------------------------------------
 
 
@@ -199,3 +234,42 @@ def test_ticket_found_for_another_policy_or_task_does_not_fit():
         with pytest.raises(UserError, match="--allow-transfer"):
             ticket.check_fits(fingerprint, task, "t")
     Ticket(noise(0)).check_fits("bb@8", "metaworld/push-v3", "t")  # made by hand: no provenance
+
+
+def test_store_of_an_older_version_opens_and_gains_the_new_columns(tmp_path):
+    path = tmp_path / "run.sqlite"
+    con = sqlite3.connect(path)
+    con.executescript("""
+        CREATE TABLE config (id INTEGER PRIMARY KEY CHECK (id = 0), value TEXT NOT NULL);
+        CREATE TABLE episodes (
+            ticket_id TEXT NOT NULL, task TEXT NOT NULL, seed INTEGER NOT NULL, seed_set TEXT NOT NULL,
+            success INTEGER NOT NULL, ret REAL NOT NULL, length INTEGER NOT NULL, wall_time REAL NOT NULL,
+            PRIMARY KEY (ticket_id, task, seed, seed_set));
+        INSERT INTO episodes VALUES ('abc123abc123', 'push', 1, 'search', 1, 1.5, 101, 0.25);
+        PRAGMA user_version = 1;""")
+    con.close()
+    with RunStore(path) as store:
+        assert store.episodes() == [row(1)]
+        store.record([EpisodeRow("base", "push", 1_000_000, "heldout", False, 0.0, 3, 0.1, NONFINITE)])
+        assert store.first_digests("push", [(1, "d1")]) == ["d1"]
+    with RunStore(path) as store:
+        assert store.episodes(ticket_id="base")[0].cause == NONFINITE
+        assert store.first_digests("push", [(1, "other"), (2, "d2"), (2, "d3")]) == ["d1", "d2", "d2"]
+        assert store.first_digests("reach", [(1, "other")]) == ["other"]  # seeds are per task
+
+
+def test_store_with_a_damaged_config_or_return_is_one_line(tmp_path):
+    path = tmp_path / "run.sqlite"
+    with RunStore(path) as store:
+        store.claim_config({"policy": "dp"})
+        store.record([row(1), row(2)])
+    with sqlite3.connect(path) as con:
+        con.execute("UPDATE episodes SET ret = 'lots' WHERE seed = 2")
+    with RunStore(path) as store, pytest.raises(UserError) as info:
+        store.episodes()
+    assert str(path) in str(info.value) and "non-numeric ret ('lots')" in str(info.value)
+    with sqlite3.connect(path) as con:
+        con.execute("UPDATE config SET value = '{not json'")
+    with RunStore(path) as store, pytest.raises(UserError) as info:
+        store.claim_config({"policy": "dp"})
+    assert str(path) in str(info.value) and "config is not JSON" in str(info.value)

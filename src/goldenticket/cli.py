@@ -9,6 +9,7 @@ import os
 import signal
 import sys
 import time
+import traceback
 from pathlib import Path
 
 from goldenticket import __version__
@@ -91,6 +92,12 @@ def _engine_args(p: argparse.ArgumentParser) -> None:
                    help="Ray cluster address, e.g. ray://head:10001 (default: start a local Ray instance)")
 
 
+def _max_nonfinite_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--max-nonfinite", type=float, default=0.1,
+                   help="an episode whose policy call returns NaN or infinite actions ends as a failure; "
+                        "stop when more than this fraction of an arm's held-out episodes end so")
+
+
 def _search_options(p: argparse.ArgumentParser, per_task_budget: bool = False) -> None:
     p.add_argument("--method", default="cma-es", choices=list(OPTIMIZERS),
                    help="random search, CEM, zeroth-order search, CEM raced by halving "
@@ -145,6 +152,7 @@ def _search_parser(sub) -> None:
                              "repeated over the horizon), channels:I,J (those action channels; the others 0)")
     search.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     search.add_argument("--success", default=None, help=SUCCESS_HELP)
+    _max_nonfinite_arg(search)
     _run_args(search)
 
 
@@ -161,6 +169,7 @@ def _evaluate_parser(sub) -> None:
     ev.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
     ev.add_argument("--success", default=None, help=SUCCESS_HELP)
     _engine_args(ev)
+    _max_nonfinite_arg(ev)
     ev.add_argument("--allow-transfer", action="store_true",
                     help="run tickets found for another policy or task (transfer studies)")
     ev.add_argument("--mixture", action="store_true",
@@ -198,6 +207,9 @@ def _train_parser(sub) -> None:
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="goldenticket", description=__doc__)
     parser.add_argument("--version", action="version", version=f"goldenticket {__version__}")
+    parser.add_argument("--verbose", action="store_true",
+                        help="on an error, also print its full traceback (an error in your own policy, "
+                             "env or success predicate is otherwise one line naming its file and line)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     demo = sub.add_parser("demo", help=f"search and judge a golden ticket for the bundled {DEMO_POLICY}")
     _run_args(demo)
@@ -259,6 +271,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return COMMANDS[args.command](args)
     except UserError as exc:
+        if args.verbose:
+            traceback.print_exception(exc)
         return _fail(str(exc))
     except BrokenPipeError:  # `goldenticket tickets list | head`: the reader has gone; say nothing
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -307,7 +321,7 @@ def _search(args) -> int:
                        args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
                        args.success, args.backend, args.address, args.subspace,
                        objectives[1] if len(objectives) == 2 else None, args.validation_seeds,
-                       args.no_regression)
+                       args.no_regression, max_nonfinite=args.max_nonfinite)
     if isinstance(cfg.task, tuple):
         return _run_multitask_search(cfg, args.out)
     return _run_search(cfg, args.out)
@@ -381,7 +395,7 @@ def _evaluate(args) -> int:
             raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
     rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
                             args.allow_transfer, args.max_steps, args.success, args.backend, args.address,
-                            args.mixture, args.epsilon)
+                            args.mixture, args.epsilon, args.max_nonfinite)
     tickets = [r | {"ticket_id": label} for label, r in rows.items()
                if label not in ("base", "zero", "mixture")]
     arms = arm_rows(rows["base"], rows["zero"], tickets)

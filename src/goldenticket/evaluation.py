@@ -6,26 +6,40 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
+from goldenticket.errors import UserError
 from goldenticket.noise import Gaussian, NoiseSource
-from goldenticket.rollout import Engine, Episode, EpisodeResult
+from goldenticket.rollout import NONFINITE, Engine, Episode, EpisodeResult
 from goldenticket.stats import Rate, holm_adjust, paired_exact_test
 from goldenticket.store import EpisodeRow, RunStore
-from goldenticket.tasks.base import seed_set_of
+from goldenticket.tasks.base import SEED_SETS, seed_set_of
 
 ALPHA = 0.05
+MAX_NONFINITE = 0.1  # default: the fraction of an arm's held-out episodes that may end in a NaN action
 Job = tuple[str, NoiseSource, Sequence[int]]  # (label, noise source, seeds)
+
+
+def check_max_nonfinite(fraction: float) -> None:
+    """UserError unless `fraction` (a max_nonfinite) is in [0, 1]."""
+    if not 0 <= fraction <= 1:
+        raise UserError(f"--max-nonfinite must be a fraction in [0, 1], got {fraction}")
 
 
 class Evaluator:
     """Runs (label, noise source, seeds) through the engine, recording every episode.
 
     Episodes already in the store are read back, not re-run, so a killed run resumes where it
-    stopped. The label identifies the noise source: "base", "zero", or a ticket id.
+    stopped. The label identifies the noise source: "base", "zero", or a ticket id. Two checks
+    stop a run with a UserError: a new episode whose initial observation differs from the one
+    first recorded for its task and seed (in the store, or in memory without one; the episode is
+    not recorded), and an arm whose held-out episodes ended with a NaN or infinite action more
+    often than `max_nonfinite` of them (rarer ones count as failures).
     """
 
     def __init__(self, engine: Engine, store: RunStore | None = None,
-                 on_done: Callable[[int], None] | None = None):
-        self.engine, self.store, self.on_done = engine, store, on_done
+                 on_done: Callable[[int], None] | None = None, max_nonfinite: float = MAX_NONFINITE):
+        check_max_nonfinite(max_nonfinite)
+        self.engine, self.store, self.on_done, self.max_nonfinite = engine, store, on_done, max_nonfinite
+        self._digests: dict[tuple[str, int], str] = {}  # (task, seed): first initial digest, without a store
 
     def run(self, jobs: Sequence[Job], task: str | None = None) -> list[list[EpisodeResult]]:
         """Results per job, in seed order, on `task` (default: the engine's first); new episodes of
@@ -35,25 +49,59 @@ class Evaluator:
         if self.store is not None:
             for label in {label for label, _, _ in jobs}:
                 for row in self.store.episodes(ticket_id=label, task=task):
-                    known[label, row.seed] = EpisodeResult(row.seed, row.success, row.ret,
-                                                           row.length, row.wall_time)
+                    known[label, row.seed] = EpisodeResult(row.seed, row.success, row.ret, row.length,
+                                                           row.wall_time, cause=row.cause)
         todo = [(label, Episode(source, seed)) for label, source, seeds in jobs for seed in seeds
                 if (label, seed) not in known]
+        heldout: dict[str, list[int]] = {}
+        for label, _, seeds in jobs:
+            heldout.setdefault(label, []).extend(s for s in seeds if s in SEED_SETS["heldout"])
+        self._check_nonfinite(heldout, known)
 
         def keep(start: int, results: list[EpisodeResult]) -> None:
             labels = [label for label, _ in todo[start : start + len(results)]]
-            known.update({(label, r.seed): r for label, r in zip(labels, results, strict=True)})
+            same = self._same_initial_states(task, results)
+            kept = [(label, r) for label, r, ok in zip(labels, results, same, strict=True) if ok]
+            known.update({(label, r.seed): r for label, r in kept})
             if self.store is not None:  # recorded as it finishes: a killed run loses little
                 self.store.record(EpisodeRow(label, task, r.seed, seed_set_of(r.seed), r.success,
-                                             r.ret, r.length, r.wall_time)
-                                  for label, r in zip(labels, results, strict=True))
+                                             r.ret, r.length, r.wall_time, r.cause) for label, r in kept)
+            if not all(same):
+                seed = next(r.seed for r, ok in zip(results, same, strict=True) if not ok)
+                where = "in worker processes" if self.engine.in_workers else "from one episode to the next"
+                raise UserError(f"task {task!r}: reset(seed={seed}) does not fix the initial state {where}: "
+                                "it gave another initial observation than this run's first episode on "
+                                "that seed; seed every random draw of reset from its seed")
             if self.on_done:
                 self.on_done(len(results))
+            self._check_nonfinite(heldout, known)
 
         if self.on_done:  # episodes read back from the store count as done
             self.on_done(sum(len(seeds) for _, _, seeds in jobs) - len(todo))
         self.engine.evaluate([ep for _, ep in todo], keep, task)
         return [[known[label, s] for s in seeds] for label, _, seeds in jobs]
+
+    def _same_initial_states(self, task: str, results: list[EpisodeResult]) -> list[bool]:
+        """Whether each episode began in the state first recorded for its seed (the first recorded
+        is each seed's first episode)."""
+        pairs = [(r.seed, r.digest) for r in results]
+        if self.store is not None:
+            first = self.store.first_digests(task, pairs)
+        else:
+            first = [self._digests.setdefault((task, seed), digest) for seed, digest in pairs]
+        return [r.digest == f for r, f in zip(results, first, strict=True)]
+
+    def _check_nonfinite(self, heldout: dict[str, list[int]], known: dict) -> None:
+        """UserError if more than max_nonfinite of an arm's held-out episodes (`heldout`: seeds by
+        label) ended with a non-finite action among those finished (`known`)."""
+        for label, seeds in heldout.items():
+            finished = [known[label, s] for s in seeds if (label, s) in known]
+            ended = [r for r in finished if r.cause == NONFINITE]
+            if len(ended) > self.max_nonfinite * len(seeds):
+                raise UserError(f"policy {self.engine.label!r} returned NaN or infinite actions in "
+                                f"{len(ended)} of the {len(seeds)} held-out episodes of {label}, more than "
+                                f"--max-nonfinite {self.max_nonfinite:g} of them (the first on seed "
+                                f"{ended[0].seed}, at step {ended[0].length})")
 
 
 @dataclass
@@ -74,11 +122,16 @@ class Judged:
         return Rate.of(self.successes)
 
     @property
+    def nonfinite(self) -> int:
+        """Episodes ended as failures by a NaN or infinite action."""
+        return sum(r.cause == NONFINITE for r in self.results)
+
+    @property
     def golden(self) -> bool:
         return self.p_value is not None and self.p_value < ALPHA
 
     def to_dict(self) -> dict:
-        out = self.rate.to_dict()
+        out = self.rate.to_dict() | {"nonfinite_episodes": self.nonfinite}
         if self.p_value is not None:
             out |= {"p_value": self.p_value, "golden": self.golden,
                     "verdict": "golden" if self.golden else "not golden"}

@@ -9,11 +9,17 @@ import multiprocessing as mp
 import os
 import pickle
 import sys
+import sysconfig
+import traceback
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 from goldenticket.errors import UserError
+
+# Where code that is not the user's lives: goldenticket, the standard library, installed packages.
+_NOT_USERS = ("<frozen", *{os.path.join(path, "") for path in (
+    str(Path(__file__).parent), *map(sysconfig.get_path, ("stdlib", "purelib", "platlib")))})
 
 
 def is_import_string(name: str) -> bool:
@@ -47,11 +53,29 @@ def build(factory, what: str):
     label = factory if isinstance(factory, str) else import_name(factory)
     if isinstance(factory, str):
         factory = resolve(factory, what)
+    return call_users(factory, f"{what} {label!r}: {label.rpartition(':')[2]}()")
+
+
+def call_users(fn, what: str, *args):
+    """`fn(*args)`, a function of the user's; any exception from it (a UserError passes as it is)
+    becomes the one-line `user_failure(what, exc)`, with the exception as its cause."""
     try:
-        return factory()
+        return fn(*args)
+    except UserError:
+        raise
     except Exception as exc:  # the user's code: report it in one line
-        raise UserError(f"{what} {label!r}: {label.rpartition(':')[2]}() failed: "
-                        f"{type(exc).__name__}: {exc}") from None
+        raise user_failure(what, exc) from exc
+
+
+def user_failure(what: str, exc: BaseException) -> UserError:
+    """`<what> failed at <file>:<line>: <exception>` in one line: the line is the deepest frame of
+    the traceback in the user's own code (not goldenticket's, the standard library's or an installed
+    package's), left out if there is none."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    frame = next((f for f in reversed(frames) if not f.filename.startswith(_NOT_USERS)), None)
+    where = f" at {frame.filename}:{frame.lineno}" if frame else ""
+    message = " ".join(str(exc).split())  # one line, whatever the exception's text
+    return UserError(f"{what} failed{where}: {type(exc).__name__}" + (f": {message}" if message else ""))
 
 
 def import_name(obj) -> str:

@@ -74,7 +74,7 @@ def find_multitask_tickets(cfg: SearchConfig, out: Path) -> dict:
     with _open_store(out, cfg, run_names) as store, \
             Engine(cfg.policy, tasks, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
                    address=cfg.address, loaded=policy) as engine:
-        evaluator = Evaluator(engine, store)
+        evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
         with progress_bar(evaluator, 2 * cfg.heldout * len(tasks), "held-out: base and zero ticket"):
             for name in names:
                 evaluator.run([("base", base, heldout), ("zero", zero, heldout)], name)
@@ -151,7 +151,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     with _open_store(out, cfg, names) as store, \
             Engine(cfg.policy, tasks, workers=cfg.workers, backend=cfg.backend, address=cfg.address,
                    loaded=policy) as engine:
-        evaluator = Evaluator(engine, store)
+        evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
         with progress_bar(evaluator, cfg.heldout * len(sources) * len(tasks) + cfg.heldout * len(tasks),
                           "transfer matrix"):
             per_task = {t.name: judge(evaluator, sources, heldout, base, t.name) for t in tasks}

@@ -5,22 +5,26 @@ from __future__ import annotations
 
 def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
     """One line per noise source: success rate, 95% Wilson interval, p-values (p vs zero only
-    when some source has one), verdict."""
+    when some source has one), verdict; and, when any episode ended in a NaN or infinite action,
+    how many did per source."""
     width = max(len(label) for label in [*rows, title])
+    nonfinite = any(r.get("nonfinite_episodes") for r in rows.values())
+    extra = f" {'non-finite':>10}" if nonfinite else ""
     zero = any("p_vs_zero" in r for r in rows.values())  # none in a session: it has no zero-ticket arm
-    lines = [f"{title:<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5} {'p vs base':>10}"
+    lines = [f"{title:<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5}{extra} {'p vs base':>10}"
              + f" {'p vs zero':>10}" * zero + "  verdict"]
     for label, r in rows.items():
         p_base, p_zero = (f"{r[key]:.3g}" if key in r else "-" for key in ("p_value", "p_vs_zero"))
         ci = f"[{r['ci_low']:.1%}, {r['ci_high']:.1%}]"
-        lines.append((f"{label:<{width}} {r['success_rate']:>8.1%} {ci:>16} {r['n']:>5} {p_base:>10}"
+        extra = f" {r.get('nonfinite_episodes', 0):>10}" if nonfinite else ""
+        lines.append((f"{label:<{width}} {r['success_rate']:>8.1%} {ci:>16} {r['n']:>5}{extra} {p_base:>10}"
                       + f" {p_zero:>10}" * zero + f"  {r.get('verdict', '')}").rstrip())
     return "\n".join(lines)
 
 
 def verdict_text(rows: dict[str, dict], best: dict, note: str) -> str:
     """The verdict table (rows from `workflow.arm_rows`), a one-line plain verdict on the best
-    ticket, and how to read the p-values."""
+    ticket, and how to read the p-values (and the non-finite column, when shown)."""
     base = rows["base"]["success_rate"]
     if best["golden"]:
         line = (f"Golden ticket {best['ticket_id']}: {best['success_rate']:.1%} vs base {base:.1%} on "
@@ -28,6 +32,9 @@ def verdict_text(rows: dict[str, dict], best: dict, note: str) -> str:
     else:
         line = (f"No golden ticket: the best ticket ({best['ticket_id']}, {best['success_rate']:.1%}) "
                 f"is not significantly better than the base ({base:.1%}); p = {best['p_value']:.3g} >= 0.05")
+    if any(r.get("nonfinite_episodes") for r in rows.values()):
+        note += (" non-finite: episodes the policy ended with a NaN or infinite action, counted as "
+                 "failures.")
     return f"{verdict_table(rows)}\n\n{line}\n{note}"
 
 

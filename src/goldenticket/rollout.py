@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 import multiprocessing as mp
 import os
 import signal
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from goldenticket.errors import UserError
-from goldenticket.factories import picklable
+from goldenticket.factories import call_users, picklable
 from goldenticket.noise import NoiseSource
 from goldenticket.policies import NoisePolicy, for_task, load_policy, policy_label
 from goldenticket.tasks import OBJECTIVES, Task
@@ -26,6 +28,9 @@ class Episode:
     seed: int
 
 
+NONFINITE = "nonfinite-action"  # the cause of an episode ended by a NaN or infinite action
+
+
 @dataclass(frozen=True)
 class EpisodeResult:
     seed: int
@@ -34,6 +39,8 @@ class EpisodeResult:
     length: int
     wall_time: float
     actions: np.ndarray | None = None  # [length, A], the executed actions, when recorded
+    cause: str | None = None  # NONFINITE: ended as a failure when the policy's action was not finite
+    digest: str | None = field(default=None, compare=False)  # its initial observation's, when it ran
 
 
 def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
@@ -41,47 +48,72 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
             record_actions: bool = False) -> list[EpisodeResult]:
     """Run episodes side by side: one batched policy call per replanning step for all live envs.
 
-    An env leaves the batch when it succeeds, says it is done, or reaches `task.max_steps`. Each episode's
-    result depends only on its (source, seed), never on its batch slot. `record_actions` keeps
-    each episode's executed actions in its result. A multi-task policy acts conditioned on `task`.
+    An env leaves the batch when it succeeds, says it is done, or reaches `task.max_steps`; or,
+    as a failure with cause NONFINITE and the objective's worst return, when the policy's actions
+    for it are not finite. Each episode's result depends only on its (source, seed), never on its
+    batch slot. `record_actions` keeps each episode's executed actions in its result. A multi-task
+    policy acts conditioned on `task`. An exception in the policy's or env's code is a one-line
+    UserError naming the call and the user's file and line.
     """
     policy, n = for_task(policy, task.name), len(episodes)
+    acting, resetting, stepping = (f"policy {policy_label(policy)!r}: act()", f"task {task.name!r}: reset()",
+                                   f"task {task.name!r}: step()")
     envs = [] if envs is None else envs
     envs += [task.make_env() for _ in range(n - len(envs))]
     start = time.perf_counter()
-    obs = [env.reset(ep.seed) for env, ep in zip(envs, episodes, strict=False)]
+    obs = [call_users(env.reset, resetting, ep.seed) for env, ep in zip(envs, episodes, strict=False)]
+    digests = [observation_digest(o) for o in obs]
     samplers = [ep.source.sampler(ep.seed, policy.noise_shape) for ep in episodes]
     length = np.zeros(n, dtype=int)
     success, done = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+    causes: list[str | None] = [None] * n
     live, executed = list(range(n)), [[] for _ in range(n)]
     while live:
         noise = np.stack([samplers[i]() for i in live])
-        chunks = checked_actions(policy, policy.act(stack([obs[i] for i in live]), noise), len(live))
-        for i, chunk in zip(live, chunks, strict=True):
+        actions = call_users(policy.act, acting, stack([obs[i] for i in live]), noise)
+        chunks = checked_actions(policy, actions, len(live))
+        for i, chunk, finite in zip(live, chunks, np.isfinite(chunks).all(axis=(1, 2)), strict=True):
+            if not finite:
+                causes[i] = NONFINITE
+                continue
             for action in chunk:
-                obs[i], success[i], done[i] = envs[i].step(action)
+                obs[i], success[i], done[i] = call_users(envs[i].step, stepping, action)
                 length[i] += 1
                 if record_actions:
                     executed[i].append(action)
                 if success[i] or done[i] or length[i] >= task.max_steps:
                     break
-        live = [i for i in live if not (success[i] or done[i]) and length[i] < task.max_steps]
+        live = [i for i in live if not (success[i] or done[i] or causes[i]) and length[i] < task.max_steps]
     wall = (time.perf_counter() - start) / max(n, 1)  # episodes ran side by side: the mean
     score = OBJECTIVES[objective]
     reads_progress = objective in PROGRESS_OBJECTIVES  # else no env is asked: progress() costs a reward call
-    progress = [_progress(envs[i], success[i]) if reads_progress else 0.0 for i in range(n)]
-    return [EpisodeResult(ep.seed, bool(success[i]), score(bool(success[i]), int(length[i]), task.max_steps,
-                                                           progress[i]),
-                          int(length[i]), wall, np.array(executed[i]) if record_actions else None)
+    returns = [score(False, task.max_steps, task.max_steps, 0.0) if causes[i] else
+               score(bool(success[i]), int(length[i]), task.max_steps,
+                     _progress(envs[i], success[i], task.name) if reads_progress else 0.0)
+               for i in range(n)]
+    return [EpisodeResult(ep.seed, bool(success[i]), returns[i], int(length[i]), wall,
+                          np.array(executed[i]) if record_actions else None, causes[i], digests[i])
             for i, ep in enumerate(episodes)]
 
 
-def _progress(env, success: bool) -> float:
+def _progress(env, success: bool, task: str) -> float:
     """1 for a success, else the env's own progress() in [0, 1] where it has one, else 0."""
     if success:
         return 1.0
     progress = getattr(env, "progress", None)
-    return min(1.0, max(0.0, float(progress()))) if callable(progress) else 0.0
+    if not callable(progress):
+        return 0.0
+    return min(1.0, max(0.0, float(call_users(progress, f"task {task!r}: progress()"))))
+
+
+def observation_digest(obs) -> str:
+    """sha256 of one observation (an array, or a dict of arrays key by key), hashed as
+    `tasks.gym.observation_digest` hashes initial observations."""
+    digest = hashlib.sha256()
+    parts = obs.items() if isinstance(obs, dict) else [("", obs)]
+    for key, value in sorted(parts, key=lambda kv: kv[0]):
+        digest.update(json.dumps(key).encode() + np.ascontiguousarray(value).tobytes())
+    return digest.hexdigest()
 
 
 def stack(observations: list) -> np.ndarray | dict[str, np.ndarray]:
@@ -92,14 +124,16 @@ def stack(observations: list) -> np.ndarray | dict[str, np.ndarray]:
 
 
 def checked_actions(policy: NoisePolicy, actions: np.ndarray, batch: int) -> np.ndarray:
-    """The policy's actions if they have the contract's shape [B, n_exec, A] and are finite."""
+    """The policy's actions if they have the contract's shape [B, n_exec, A] and are real numbers
+    (NaN and infinities included: rollout ends those episodes)."""
     actions = np.asarray(actions)
     expected = (batch, policy.n_exec, policy.noise_shape[1])
     if actions.shape != expected:
         raise UserError(f"policy {policy_label(policy)!r} returned actions of shape {actions.shape}; the "
                         f"NoisePolicy contract asks for [B, n_exec, A] = {expected}")
-    if not np.isfinite(actions).all():
-        raise UserError(f"policy {policy_label(policy)!r} returned NaN or infinite actions")
+    if actions.dtype.kind not in "fiu":
+        raise UserError(f"policy {policy_label(policy)!r} returned actions of dtype {actions.dtype}; the "
+                        "NoisePolicy contract asks for real numbers (float)")
     return actions
 
 
@@ -156,6 +190,7 @@ class Engine:
             raise UserError(f"--workers must be between 1 and {most} (4 per CPU here), got {workers}")
         local = backend == "local" and workers == 1
         self.policy = (loaded or load_policy(policy)) if local else None
+        self.label, self.in_workers = policy_label(loaded or policy), not local  # for messages
         self.tasks = {t.name: t for t in ([task] if hasattr(task, "make_env") else task)}
         self.task = next(iter(self.tasks.values()))
         self.objective, self.shard_size = objective, shard_size

@@ -6,7 +6,7 @@ import json
 import sqlite3
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from goldenticket.errors import UserError
@@ -17,10 +17,16 @@ CREATE TABLE config (id INTEGER PRIMARY KEY CHECK (id = 0), value TEXT NOT NULL)
 CREATE TABLE episodes (
     ticket_id TEXT NOT NULL, task TEXT NOT NULL, seed INTEGER NOT NULL, seed_set TEXT NOT NULL,
     success INTEGER NOT NULL, ret REAL NOT NULL, length INTEGER NOT NULL, wall_time REAL NOT NULL,
+    cause TEXT,
     PRIMARY KEY (ticket_id, task, seed, seed_set)
 );
 """
-_COLUMNS = "ticket_id, task, seed, seed_set, success, ret, length, wall_time"
+# Added since the first stores; opening an older store adds them.
+_CAUSE = "ALTER TABLE episodes ADD COLUMN cause TEXT"
+_INITIAL_STATES = """CREATE TABLE IF NOT EXISTS initial_states (
+    task TEXT NOT NULL, seed INTEGER NOT NULL, digest TEXT NOT NULL, PRIMARY KEY (task, seed)
+)"""
+_COLUMNS = "ticket_id, task, seed, seed_set, success, ret, length, wall_time, cause"
 
 
 @dataclass(frozen=True)
@@ -35,6 +41,7 @@ class EpisodeRow:
     ret: float  # episode return
     length: int
     wall_time: float
+    cause: str | None = None  # why a failed episode ended early (rollout.NONFINITE), else None
 
 
 def _values(r: EpisodeRow) -> tuple:
@@ -48,12 +55,8 @@ def _values(r: EpisodeRow) -> tuple:
         float(r.ret),
         int(r.length),
         float(r.wall_time),
+        r.cause,
     )
-
-
-def _row(values: tuple) -> EpisodeRow:
-    ticket_id, task, seed, seed_set, success, ret, length, wall_time = values
-    return EpisodeRow(ticket_id, task, seed, seed_set, bool(success), ret, length, wall_time)
 
 
 class RunStore:
@@ -104,11 +107,16 @@ class RunStore:
         version = self._con.execute("PRAGMA user_version").fetchone()[0]
         if version == _VERSION:
             check = self._con.execute("PRAGMA quick_check").fetchone()[0]
-            return None if check == "ok" else f"run store is damaged ({check}); move it away to start afresh"
+            if check != "ok":
+                return f"run store is damaged ({check}); move it away to start afresh"
+            if "cause" not in {row[1] for row in self._con.execute("PRAGMA table_info(episodes)")}:
+                self._con.execute(_CAUSE)
+            self._con.execute(_INITIAL_STATES)
+            return None
         tables = self._con.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
         if version != 0 or tables:
             return "SQLite file is not a goldenticket run store"
-        for statement in [*_SCHEMA.split(";")[:-1], f"PRAGMA user_version = {_VERSION}"]:
+        for statement in [*_SCHEMA.split(";")[:-1], _INITIAL_STATES, f"PRAGMA user_version = {_VERSION}"]:
             self._con.execute(statement)  # not executescript: it would commit mid-transaction
         return None
 
@@ -129,15 +137,33 @@ class RunStore:
             if row is None:
                 con.execute("INSERT INTO config VALUES (0, ?)", (json.dumps(config, sort_keys=True),))
                 return True
-        return json.loads(row[0]) == json.loads(json.dumps(config))
+        try:
+            stored = json.loads(row[0])
+        except (TypeError, ValueError, RecursionError):
+            raise UserError(f"{self.path}: its config is not JSON; the file is damaged: move it away to "
+                            "start afresh") from None
+        return stored == json.loads(json.dumps(config))
 
     def record(self, rows: Iterable[EpisodeRow]) -> None:
         """Insert episodes in one transaction; an episode already recorded is replaced."""
         with self._transaction() as con:
             con.executemany(
-                f"INSERT OR REPLACE INTO episodes ({_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                f"INSERT OR REPLACE INTO episodes ({_COLUMNS}) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (_values(r) for r in rows),
             )
+
+    def first_digests(self, task: str, digests: Iterable[tuple[int, str]]) -> list[str]:
+        """For each (seed, initial-state digest) of `task`, in order: the digest first recorded for
+        that seed, this one if none was; in one transaction, so every process of a run compares
+        with the same record."""
+        with self._transaction() as con:
+            recorded = []
+            for seed, digest in digests:
+                key = (task, int(seed))
+                con.execute("INSERT OR IGNORE INTO initial_states VALUES (?, ?, ?)", (*key, digest))
+                recorded += con.execute("SELECT digest FROM initial_states WHERE task = ? AND seed = ?",
+                                        key).fetchone()
+            return recorded
 
     def episodes(
         self, *, ticket_id: str | None = None, seed_set: str | None = None, task: str | None = None
@@ -151,4 +177,15 @@ class RunStore:
             "ORDER BY ticket_id, task, seed_set, seed"
         )
         with self._transaction("DEFERRED") as con:
-            return [_row(v) for v in con.execute(query, used)]
+            rows = con.execute(query, used).fetchall()
+        return [self._row(v) for v in rows]
+
+    def _row(self, values: tuple) -> EpisodeRow:
+        """A stored episode; UserError if a number in it is not a number (a damaged file)."""
+        row = EpisodeRow(*values)
+        for name in ("seed", "success", "ret", "length", "wall_time"):
+            value = getattr(row, name)
+            if not isinstance(value, int | float):
+                raise UserError(f"{self.path}: episode {row.ticket_id} seed {row.seed!r} has a non-numeric "
+                                f"{name} ({value!r:.40}); the file is damaged: move it away to start afresh")
+        return replace(row, success=bool(row.success))

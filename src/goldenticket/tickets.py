@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ from goldenticket.files import write_atomic
 
 _TENSOR = "noise"
 _META_KEY = "goldenticket"
+_MAX_VALUES = 2**24  # far more than any (horizon, action_dim): a header declaring more is not a ticket
 
 
 def _checked_noise(noise: Any, where: str) -> np.ndarray:
@@ -83,7 +85,8 @@ class Ticket:
 
     @classmethod
     def load(cls, path: str | Path, expected_shape: tuple[int, ...] | None = None) -> Ticket:
-        """Read a ticket written by save(); every problem is a one-line UserError."""
+        """Read a ticket written by save(); every problem is a one-line UserError. The header's
+        dtype and shape are checked before the tensor is read."""
         path = Path(path)
         if not path.is_file():
             raise UserError(f"{path}: ticket file not found")
@@ -92,34 +95,53 @@ class Ticket:
                 names = f.keys()
                 if _TENSOR not in names:
                     raise UserError(f"{path}: no 'noise' tensor (found {sorted(names)})")
-                dtype = f.get_slice(_TENSOR).get_dtype()
+                header = f.get_slice(_TENSOR)
+                dtype, shape = header.get_dtype(), tuple(header.get_shape())
                 if dtype != "F32":
                     raise UserError(f"{path}: noise dtype must be float32 (F32), got {dtype}")
+                if expected_shape is not None and shape != tuple(expected_shape):
+                    raise UserError(f"{path}: noise shape {shape} does not match the policy's "
+                                    f"expected shape {tuple(expected_shape)}")
+                if math.prod(shape) > _MAX_VALUES:
+                    raise UserError(f"{path}: noise shape {shape} holds more than the {_MAX_VALUES} values a "
+                                    "ticket may have")
                 noise = f.get_tensor(_TENSOR)
-                header = f.metadata() or {}
+                metadata = f.metadata() or {}
         except SafetensorError as e:
             raise UserError(f"{path}: not a valid safetensors file ({e})") from None
-        if expected_shape is not None and tuple(noise.shape) != tuple(expected_shape):
-            raise UserError(
-                f"{path}: noise shape {tuple(noise.shape)} does not match the policy's "
-                f"expected shape {tuple(expected_shape)}"
-            )
-        return cls(_checked_noise(noise, str(path)), _parse_metadata(header, path))
+        return cls(_checked_noise(noise, str(path)), _parse_metadata(metadata, path))
+
+
+_STRINGS = ("policy", "policy_fingerprint", "task")  # metadata that must be a string when present
 
 
 def _parse_metadata(header: dict[str, str], path: Path) -> dict:
+    """The ticket's metadata from its header, with the types the code reading it relies on."""
     try:
         metadata = json.loads(header.get(_META_KEY, "{}"))
-    except json.JSONDecodeError as e:
-        raise UserError(f"{path}: ticket metadata is not valid JSON ({e})") from None
+    except (json.JSONDecodeError, RecursionError) as e:
+        reason = "nested too deeply" if isinstance(e, RecursionError) else e
+        raise UserError(f"{path}: ticket metadata is not valid JSON ({reason})") from None
     if not isinstance(metadata, dict):
         raise UserError(f"{path}: ticket metadata must be a JSON object")
-    if not isinstance(metadata.get("policy_fingerprint", ""), str):
-        raise UserError(f"{path}: metadata policy_fingerprint must be a string")
+    for key in _STRINGS:
+        if not isinstance(metadata.get(key, ""), str):
+            raise UserError(f"{path}: metadata {key} must be a string, got {type(metadata[key]).__name__}")
+    tasks = metadata.get("tasks")
+    if tasks is not None:
+        if not (isinstance(tasks, list) and tasks and all(isinstance(t, str) for t in tasks)):
+            raise UserError(f"{path}: metadata tasks must be a list of task names, got {tasks!r:.60}")
+        if "task" not in metadata:
+            raise UserError(f"{path}: metadata has tasks but no task")
+    steps = metadata.get("max_steps")
+    if steps is not None and not (type(steps) is int and steps > 0):
+        raise UserError(f"{path}: metadata max_steps must be an integer > 0, got {steps!r:.40}")
+    if not isinstance(metadata.get("success"), str | None):
+        raise UserError(f"{path}: metadata success must be an import string or null")
     span = metadata.get("search_seeds")
     if span is not None and not (isinstance(span, list) and len(span) == 2
                                  and all(type(s) is int and s >= 0 for s in span) and span[0] <= span[1]):
-        raise UserError(f"{path}: metadata search_seeds must be [first, last] seeds, got {span!r}")
+        raise UserError(f"{path}: metadata search_seeds must be [first, last] seeds, got {span!r:.60}")
     return metadata
 
 

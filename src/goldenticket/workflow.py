@@ -13,7 +13,15 @@ import numpy as np
 from tqdm import tqdm
 
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Evaluator, Judged, adjust_for_multiplicity, judge, p_value_note
+from goldenticket.evaluation import (
+    MAX_NONFINITE,
+    Evaluator,
+    Judged,
+    adjust_for_multiplicity,
+    check_max_nonfinite,
+    judge,
+    p_value_note,
+)
 from goldenticket.factories import import_name
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian, TopK
@@ -57,9 +65,11 @@ class SearchConfig:
     validation_seeds: int | None = None  # > 0: pick the top_k among 3 x top_k search tickets on these
     # seeds; None: 100 for one task, 0 for several
     no_regression: bool = False  # multi-task: never call best a ticket significantly worse on a task
+    max_nonfinite: float = MAX_NONFINITE  # stop once more of an arm's held-out episodes end in NaN actions
 
     def check(self) -> None:
         """Every option, before any episode runs."""
+        check_max_nonfinite(self.max_nonfinite)
         if self.stop_after_perfect is not None and self.stop_after_perfect < 1:
             raise UserError(f"--stop-after-perfect must be >= 1 (0 on the command line: never), "
                             f"got {self.stop_after_perfect}")
@@ -118,7 +128,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     with _open_store(out, cfg, names) as store, \
             Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
                    address=cfg.address, loaded=policy) as engine:
-        evaluator = Evaluator(engine, store)
+        evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
         with progress_bar(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
         with progress_bar(evaluator, cfg.budget, f"search ({cfg.method})") as bar:
@@ -233,7 +243,7 @@ def _open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
         raise UserError(f"cannot create --out {out}: {exc.strerror}") from None
     store = RunStore(out / "run.sqlite")
     success = cfg.success if cfg.success is None or isinstance(cfg.success, str) else import_name(cfg.success)
-    config = {f.name: getattr(cfg, f.name) for f in fields(cfg)} | {
+    config = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name != "max_nonfinite"} | {
         "policy": names.policy, "task": names.task, "success": success,
         "policy_fingerprint": names.fingerprint,
         "workers": None, "backend": None, "address": None}  # where episodes run does not change them
@@ -320,7 +330,7 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
                      seeds: list[int], seed: int = 0, workers: int = 2, allow_transfer: bool = False,
                      max_steps: int | None = None, success: str | Callable | None = None,
                      backend: str = "local", address: str | None = None, mixture: bool = False,
-                     epsilon: float = 0.0) -> dict[str, dict]:
+                     epsilon: float = 0.0, max_nonfinite: float = MAX_NONFINITE) -> dict[str, dict]:
     """Base, zero ticket and each ticket on held-out `seeds`: one-sided paired p-values vs base
     and vs zero, Holm-adjusted over the tickets. A ticket found for another policy or task is
     refused unless `allow_transfer`. `mixture` adds an arm that draws one of the tickets at every
@@ -331,6 +341,7 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
         raise UserError(f"--seed must be >= 0, got {seed}")
     if not 0 <= epsilon <= 1 or (epsilon and not mixture):
         raise UserError(f"--epsilon must be in [0, 1] and comes with --mixture, got {epsilon}")
+    check_max_nonfinite(max_nonfinite)
     policy, task = load_policy(policy_ref), get_task(task_ref, max_steps, success)
     loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape) for path in ticket_paths}
     names = Names.of(policy_ref, policy, task.name)
@@ -351,7 +362,7 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
         reseeded["mixture"] = lambda r: TopK(stacked, seed + r, epsilon)
     sources = {label: source(0) for label, source in reseeded.items() if label != "base"}
     with Engine(policy_ref, task, workers=workers, backend=backend, address=address, loaded=policy) as engine:
-        evaluator = Evaluator(engine)
+        evaluator = Evaluator(engine, max_nonfinite=max_nonfinite)
         with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
             judged = judge(evaluator, sources, seeds, Gaussian(seed))
     adjust_for_multiplicity(judged, [label for label in sources if label != "zero"])

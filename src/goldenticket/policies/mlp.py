@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save
 from torch import nn
 
@@ -170,6 +171,9 @@ class MLPPolicy:
             cfg = PolicyConfig(**json.loads((directory / "config.json").read_text()))
             model = Denoiser(cfg)
             model.load_state_dict(load_file(str(directory / "model.safetensors")))
+        except SafetensorError as exc:
+            weights = directory / "model.safetensors"
+            raise UserError(f"{weights}: not a valid safetensors file ({exc})") from None
         except (OSError, ValueError, TypeError, RuntimeError) as exc:
             raise UserError(f"cannot load policy from {directory}: {exc}") from None
         return cls(cfg, model)

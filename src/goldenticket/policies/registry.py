@@ -11,7 +11,7 @@ import hashlib
 from pathlib import Path
 
 from goldenticket.errors import UserError
-from goldenticket.factories import build, import_name, is_import_string
+from goldenticket.factories import build, call_users, import_name, is_import_string
 from goldenticket.policies.base import NoisePolicy
 from goldenticket.policies.mlp import MLPPolicy
 
@@ -105,6 +105,9 @@ def policy_label(policy: str | NoisePolicy) -> str:
 def fingerprint(policy: NoisePolicy, label: str) -> str:
     """What a ticket is found for: the policy's own `fingerprint()` (bundled policies: weights hash
     and step count) or, for a policy that has none, a hash of its label."""
-    if callable(getattr(policy, "fingerprint", None)):
-        return policy.fingerprint()
-    return "name-" + hashlib.sha256(label.encode()).hexdigest()[:16]
+    if not callable(getattr(policy, "fingerprint", None)):
+        return "name-" + hashlib.sha256(label.encode()).hexdigest()[:16]
+    value = call_users(policy.fingerprint, f"policy {label!r}: fingerprint()")
+    if not isinstance(value, str):
+        raise UserError(f"policy {label!r}: fingerprint() must return a string, got {type(value).__name__}")
+    return value
