@@ -67,7 +67,7 @@ def test_multitask_search_judges_each_task_on_unsearched_seeds(mt_policy, tmp_pa
     assert (out / "verdict.png").stat().st_size > 0
     # a multi-task ticket runs on each of its tasks without --allow-transfer
     assert main(["evaluate", "--policy", mt_policy, "--task", TASKS[1], "--ticket", str(ticket_path),
-                 "--seeds", "1000000:1000002", "--workers", "1", "--max-steps", "20",
+                 "--seeds", "1000000:1000002", "--workers", "1",
                  "--plot", str(tmp_path / "e.png")]) == 0
 
 

@@ -159,19 +159,23 @@ def _search_parser(sub) -> None:
 def _evaluate_parser(sub) -> None:
     ev = sub.add_parser("evaluate", help="judge tickets against the base policy on held-out seeds")
     ev.add_argument("--policy", required=True, help=POLICY_HELP)
-    ev.add_argument("--task", required=True, help=TASK_HELP)
+    ev.add_argument("--task", default=None,
+                    help=TASK_HELP + " (default: the task the tickets were found on)")
     ev.add_argument("--ticket", action="append", default=[],
                     help="ticket file or bundled ticket id; repeat for several; without it, only "
                          "the base and the zero ticket run")
     ev.add_argument("--seeds", type=_seed_range, required=True,
                     help="held-out seed range A:B (seeds 1000000:2000000 name held-out states)")
     ev.add_argument("--seed", type=_seed, default=0, help="seed of the base policy's Gaussian noise")
-    ev.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
-    ev.add_argument("--success", default=None, help=SUCCESS_HELP)
+    ev.add_argument("--max-steps", type=int, default=None,
+                    help="episode step limit (default: the tickets' own, else the task's)")
+    ev.add_argument("--success", default=None,
+                    help=SUCCESS_HELP.replace("(default: ", "(default: the tickets' own, else "))
     _engine_args(ev)
     _max_nonfinite_arg(ev)
     ev.add_argument("--allow-transfer", action="store_true",
-                    help="run tickets found for another policy or task (transfer studies)")
+                    help="run tickets found for another policy or task, or under another --max-steps or "
+                         "--success (transfer studies)")
     ev.add_argument("--mixture", action="store_true",
                     help="add an arm that draws one of the tickets at every policy call, and report "
                          "each arm's diversity (spread of executed actions from one initial state)")
@@ -386,7 +390,8 @@ def _evaluate(args) -> int:
     from goldenticket.plots import arms_png
     from goldenticket.policies import find_ticket
     from goldenticket.report import verdict_text
-    from goldenticket.workflow import arm_rows, evaluate_tickets
+    from goldenticket.tickets import Ticket
+    from goldenticket.workflow import arm_rows, evaluate_tickets, found_under
 
     paths = [find_ticket(ref) for ref in args.ticket]
     if args.plot is not None:
@@ -405,7 +410,8 @@ def _evaluate(args) -> int:
     best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],
                key=lambda r: (r["success_rate"], -r["p_value"]))
     if args.plot is not None:
-        arms_png(arms, args.plot, f"{args.policy} on {args.task}, seeds {args.seeds.start}:{args.seeds.stop}",
+        task = args.task or found_under([Ticket.load(p) for p in paths], {"task": None})["task"]
+        arms_png(arms, args.plot, f"{args.policy} on {task}, seeds {args.seeds.start}:{args.seeds.stop}",
                  best=f"ticket {best['ticket_id']}")
     if args.json:
         print(json.dumps(rows, indent=2))

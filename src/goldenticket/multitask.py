@@ -46,13 +46,22 @@ from goldenticket.workflow import (
 
 
 def _tasks(policy, cfg_task, max_steps: int | None) -> list:
-    """The named tasks, each one the policy can act on (UserError now, not mid-run)."""
+    """The named tasks, each one the policy can act on and whose reset(seed) fixes the initial
+    state (UserError now, not mid-run)."""
     tasks = [get_task(name, max_steps) for name in cfg_task]
     if len({t.name for t in tasks}) < len(tasks):
         raise UserError("a --task is given twice")
     for task in tasks:
         for_task(policy, task.name)
+        task.check()
     return tasks
+
+
+def _names(cfg: SearchConfig, policy, tasks: list) -> Names:
+    """The run's names; its tickets record the tasks' step limit when they share one."""
+    limits = {t.max_steps for t in tasks}
+    return Names.of(cfg.policy, policy, " + ".join(t.name for t in tasks),
+                    limits.pop() if len(limits) == 1 else None)
 
 
 def find_multitask_tickets(cfg: SearchConfig, out: Path) -> dict:
@@ -67,7 +76,7 @@ def find_multitask_tickets(cfg: SearchConfig, out: Path) -> dict:
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
     keys = list(range(len(tasks) * len(search_seeds)))
     optimizer = cfg.optimizer(policy.noise_shape, keys)
-    run_names = Names.of(cfg.policy, policy, " + ".join(names))
+    run_names = _names(cfg, policy, tasks)
     expand = functools.partial(Subspace.parse(cfg.subspace, policy.noise_shape).expand,
                                noise_shape=policy.noise_shape)
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
@@ -133,7 +142,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     policy = load_policy(cfg.policy)
     tasks = _tasks(policy, cfg.task, cfg.max_steps)
     heldout = seeds_in("heldout", cfg.heldout)
-    names = Names.of(cfg.policy, policy, " + ".join(t.name for t in tasks))
+    names = _names(cfg, policy, tasks)
     if ticket_refs:
         tickets = [Ticket.load(find_ticket(ref), expected_shape=policy.noise_shape) for ref in ticket_refs]
         for ref, ticket in zip(ticket_refs, tickets, strict=True):

@@ -59,18 +59,19 @@ class Ticket:
         digest.update(noise.tobytes())
         return digest.hexdigest()[:12]
 
-    def check_fits(self, fingerprint: str, task: str, where: str) -> None:
-        """UserError unless the ticket was found for this policy (fingerprint) and task (one of
-        its `tasks` for a multi-task ticket); a ticket without that metadata (made by hand) fits
-        anything."""
+    def check_fits(self, fingerprint: str, task: str | None, where: str) -> None:
+        """UserError unless the ticket was found for this policy (its identity, `policies.identity`)
+        and, when `task` is given, for that task (one of its `tasks` for a multi-task ticket); a
+        ticket without that metadata (made by hand) fits anything."""
         meta, found_for = self.metadata, []
         if meta.get("policy_fingerprint", fingerprint) != fingerprint:
             found_for.append(f"policy {meta.get('policy')} ({meta['policy_fingerprint']})")
-        if task not in meta.get("tasks", [meta.get("task", task)]):
+        if task is not None and task not in meta.get("tasks", [meta.get("task", task)]):
             found_for.append(f"task {meta['task']}")
         if found_for:
+            on = "" if task is None else f" on {task}"
             raise UserError(f"{where}: ticket {self.id} was found for {' and '.join(found_for)}, not "
-                            f"this policy ({fingerprint}) on {task}; --allow-transfer runs it anyway")
+                            f"this policy ({fingerprint}){on}; --allow-transfer runs it anyway")
 
     def search_seeds(self) -> range | None:
         """The search seeds it was found on (metadata `search_seeds`: [first, last]), if recorded."""

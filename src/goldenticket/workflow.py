@@ -26,8 +26,7 @@ from goldenticket.factories import import_name
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.plots import arms_png, search_png
-from goldenticket.policies import NoisePolicy, load_policy, policy_label
-from goldenticket.policies import fingerprint as policy_fingerprint
+from goldenticket.policies import NoisePolicy, identity, load_policy, policy_label
 from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
@@ -119,8 +118,9 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     cfg.check()
     policy, task = load_policy(cfg.policy), get_task(cfg.task, cfg.max_steps, cfg.success)
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
+    validation = seeds_in("validation", cfg.validation())
     optimizer = cfg.optimizer(policy.noise_shape, search_seeds)
-    names = Names.of(cfg.policy, policy, task.name)
+    names = Names.of(cfg.policy, policy, task.name, task.max_steps, cfg.success)
     expand = functools.partial(Subspace.parse(cfg.subspace, policy.noise_shape).expand,
                                noise_shape=policy.noise_shape)
     task.check()
@@ -137,7 +137,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
                                 max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
         tickets = _select(cfg, evaluator, [_ticket(cfg, names, result, c, search_seeds, expand)
-                                           for c in _top(result, cfg, len(optimizer.seeds))])
+                                           for c in _top(result, cfg, len(optimizer.seeds))], validation)
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
@@ -170,13 +170,12 @@ def _top(result: SearchResult, cfg: SearchConfig, seeds: int) -> list:
     return result.top(k, min_episodes=seeds) or result.top(k)
 
 
-def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket]) -> list[Ticket]:
-    """`tickets` as ranked by search, or, with validation seeds, the top_k of them by mean return
+def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket], seeds: list[int]) -> list[Ticket]:
+    """`tickets` as ranked by search, or, with validation `seeds`, the top_k of them by mean return
     on those seeds (ties: search rank): a selection on states neither the search nor the
     held-out verdict uses."""
-    if not cfg.validation():
+    if not seeds:
         return tickets
-    seeds = seeds_in("validation", cfg.validation())
     with progress_bar(evaluator, len(seeds) * len(tickets), "validation: search's best tickets"):
         runs = evaluator.run([(t.id, Constant(t.noise), seeds) for t in tickets])
     scores = [float(np.mean([r.ret for r in rs])) for rs in runs]
@@ -219,17 +218,25 @@ def arm_rows(base: dict, zero: dict, tickets: list[dict]) -> dict[str, dict]:
 
 @dataclass(frozen=True)
 class Names:
-    """How the run's files name its policy and task, and what its tickets are found for."""
+    """How the run's files name its policy and task, what its tickets are found for (the policy's
+    identity) and the episode settings they are found under (None: not one value)."""
 
     policy: str
     task: str
     fingerprint: str
+    max_steps: int | None = None
+    success: str | None = None
 
     @classmethod
-    def of(cls, policy_ref: str | NoisePolicy, policy: NoisePolicy, task_name: str) -> Names:
+    def of(cls, policy_ref: str | NoisePolicy, policy: NoisePolicy, task_name: str,
+           max_steps: int | None = None, success: str | Callable | None = None) -> Names:
         """Names of `policy`, built from `policy_ref`, on the task named `task_name`."""
-        label = policy_label(policy_ref)
-        return cls(label, task_name, policy_fingerprint(policy, label))
+        return cls(policy_label(policy_ref), task_name, identity(policy), max_steps, _named(success))
+
+
+def _named(obj: str | Callable | None) -> str | None:
+    """A user's function as files record it: its import string."""
+    return obj if obj is None or isinstance(obj, str) else import_name(obj)
 
 
 def _open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
@@ -242,9 +249,8 @@ def _open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
     except OSError as exc:
         raise UserError(f"cannot create --out {out}: {exc.strerror}") from None
     store = RunStore(out / "run.sqlite")
-    success = cfg.success if cfg.success is None or isinstance(cfg.success, str) else import_name(cfg.success)
     config = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name != "max_nonfinite"} | {
-        "policy": names.policy, "task": names.task, "success": success,
+        "policy": names.policy, "task": names.task, "success": _named(cfg.success),
         "policy_fingerprint": names.fingerprint,
         "workers": None, "backend": None, "address": None}  # where episodes run does not change them
     if not store.claim_config(config):
@@ -287,7 +293,8 @@ def query_evaluator(evaluator: Evaluator, fingerprint: str, expand: Callable = l
 def _ticket(cfg: SearchConfig, names: Names, result: SearchResult, candidate,
             search_seeds: list[int], expand: Callable) -> Ticket:
     noise = expand(candidate.ticket)
-    return Ticket(noise, {
+    limit = {} if names.max_steps is None else {"max_steps": names.max_steps}
+    return Ticket(noise, limit | {"success": names.success} | {
         "policy": names.policy, "policy_fingerprint": names.fingerprint,
         "noise_shape": list(noise.shape), "task": names.task, "method": cfg.method,
         "subspace": cfg.subspace, "searched_shape": list(candidate.ticket.shape),
@@ -326,24 +333,28 @@ def _summary(cfg: SearchConfig, names: Names, judged: dict[str, Judged], entries
     }
 
 
-def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ticket_paths: list[Path],
+def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable | None, ticket_paths: list[Path],
                      seeds: list[int], seed: int = 0, workers: int = 2, allow_transfer: bool = False,
                      max_steps: int | None = None, success: str | Callable | None = None,
                      backend: str = "local", address: str | None = None, mixture: bool = False,
                      epsilon: float = 0.0, max_nonfinite: float = MAX_NONFINITE) -> dict[str, dict]:
     """Base, zero ticket and each ticket on held-out `seeds`: one-sided paired p-values vs base
-    and vs zero, Holm-adjusted over the tickets. A ticket found for another policy or task is
-    refused unless `allow_transfer`. `mixture` adds an arm that draws one of the tickets at every
-    policy call (Gaussian noise with probability `epsilon`), and gives every arm its `diversity`
-    (`studies.diversity.action_spread` on the first 10 seeds)."""
+    and vs zero, Holm-adjusted over the tickets. The task, `max_steps` and `success` default to
+    those the tickets were found under; a ticket found for another policy or task, or a setting
+    that contradicts its own, is refused unless `allow_transfer`. `mixture` adds an arm that draws
+    one of the tickets at every policy call (Gaussian noise with probability `epsilon`), and gives
+    every arm its `diversity` (`studies.diversity.action_spread` on the first 10 seeds)."""
     require_heldout(seeds)
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
     if not 0 <= epsilon <= 1 or (epsilon and not mixture):
         raise UserError(f"--epsilon must be in [0, 1] and comes with --mixture, got {epsilon}")
     check_max_nonfinite(max_nonfinite)
-    policy, task = load_policy(policy_ref), get_task(task_ref, max_steps, success)
+    policy = load_policy(policy_ref)
     loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape) for path in ticket_paths}
+    given = {"task": task_ref, "max_steps": max_steps, "success": success}
+    settings = found_under(list(loaded.values()), given, allow_transfer)
+    task = get_task(settings["task"], settings["max_steps"], settings["success"])
     names = Names.of(policy_ref, policy, task.name)
     for path, ticket in loaded.items():
         if not allow_transfer:
@@ -371,3 +382,32 @@ def evaluate_tickets(policy_ref: str | NoisePolicy, task_ref: str | Callable, ti
         for label, source in tqdm(reseeded.items(), desc="diversity", unit="arm"):
             rows[label]["diversity"] = action_spread(policy, task, source, seeds[:10])
     return rows
+
+
+SETTING_FLAGS = {"task": "--task", "max_steps": "--max-steps", "success": "--success"}
+
+
+def found_under(tickets: list[Ticket], given: dict, allow_transfer: bool = False) -> dict:
+    """The task, max_steps and success to judge `tickets` under: each as `given` where given (not
+    None), else as the tickets record they were found and judged under (None where they record
+    nothing). UserError when the tickets disagree on an unset one, when no task is known, or when
+    a given one contradicts a ticket's, unless `allow_transfer`."""
+    settings = {}
+    for key, value in given.items():
+        recorded = {}  # value -> the first ticket recording it
+        for ticket in tickets:
+            if key in ticket.metadata and not (key == "task" and "tasks" in ticket.metadata):
+                recorded.setdefault(ticket.metadata[key], ticket.id)
+        flag, named = SETTING_FLAGS[key], _named(value) if key != "max_steps" else value
+        if value is None and len(recorded) > 1:
+            found = ", ".join(map(str, recorded))
+            raise UserError(f"the tickets were found under different {flag} ({found}); give {flag}")
+        clash = [(v, t) for v, t in recorded.items() if value is not None and v != named]
+        if clash and not allow_transfer and key != "task":  # a task mismatch: check_fits says it
+            raise UserError(f"{flag} {named} contradicts ticket {clash[0][1]}, found and judged with "
+                            f"{flag} {clash[0][0]}; leave {flag} out to use the ticket's, or "
+                            "--allow-transfer to run it anyway")
+        settings[key] = value if value is not None else next(iter(recorded), None)
+    if settings["task"] is None:
+        raise UserError("no task given and no ticket names one; give --task")
+    return settings

@@ -41,6 +41,16 @@ class TicketedPolicy:
             raise ValueError(f"ticket shape {noise.shape} != policy noise shape {self.policy.noise_shape}")
         self.noise = np.asarray(noise, dtype=np.float32)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        """obs [B, obs_dim] -> actions [B, n_exec, A], the ticket broadcast over the batch."""
-        return self.policy.act(obs, np.broadcast_to(self.noise, (len(obs), *self.noise.shape)))
+    def act(self, obs: np.ndarray | dict[str, np.ndarray]) -> np.ndarray:
+        """obs [B, ...] or {key: [B, ...]} -> actions [B, n_exec, A], the ticket broadcast over
+        the batch."""
+        return self.policy.act(obs, np.broadcast_to(self.noise, (batch_size(obs), *self.noise.shape)))
+
+
+def batch_size(obs: np.ndarray | dict[str, np.ndarray]) -> int:
+    """B, the leading dimension of a batch of observations: an array [B, ...] or a dict of them."""
+    arrays = list(obs.values()) if isinstance(obs, dict) else [obs]
+    sizes = {len(np.asarray(a)) for a in arrays}
+    if len(sizes) != 1:
+        raise ValueError(f"observation arrays disagree on the batch size: {sorted(sizes)}")
+    return sizes.pop()

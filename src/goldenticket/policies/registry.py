@@ -12,8 +12,9 @@ from pathlib import Path
 
 from goldenticket.errors import UserError
 from goldenticket.factories import build, call_users, import_name, is_import_string
-from goldenticket.policies.base import NoisePolicy
+from goldenticket.policies.base import NoisePolicy, TicketedPolicy
 from goldenticket.policies.mlp import MLPPolicy
+from goldenticket.tickets import Ticket
 
 BUNDLED_DIR = Path(__file__).parent / "bundled"
 
@@ -111,3 +112,20 @@ def fingerprint(policy: NoisePolicy, label: str) -> str:
     if not isinstance(value, str):
         raise UserError(f"policy {label!r}: fingerprint() must return a string, got {type(value).__name__}")
     return value
+
+
+def identity(policy: NoisePolicy) -> str:
+    """What a ticket is found for, the same however the policy object was reached (a bundled
+    name, a folder, an import string or the object itself): its `fingerprint()` where it has
+    one, else a hash of its `name`, else of its class's import name `module:Class`."""
+    return fingerprint(policy, policy_label(policy))
+
+
+def deploy(policy: str | NoisePolicy, ticket: str | Path, task: str | None = None) -> TicketedPolicy:
+    """`policy` (a name, folder, import string or object) acting with `ticket` (a file or a
+    bundled ticket id), once the ticket is checked to have the policy's noise shape and to
+    have been found for this policy (and for `task`, when given); one-line UserError if not."""
+    policy = load_policy(policy)
+    loaded = Ticket.load(find_ticket(str(ticket)), expected_shape=tuple(policy.noise_shape))
+    loaded.check_fits(identity(policy), task, str(ticket))
+    return TicketedPolicy(policy, loaded.noise)
