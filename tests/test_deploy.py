@@ -109,6 +109,9 @@ def test_options_are_checked_before_any_episode_or_store_write(tmp_path):
                 "--validation-seeds", "1000001", "--out", str(out))
     assert done.returncode == 2 and "validation" in done.stderr and done.stderr.count("\n") == 1
     assert not out.exists()
+    done = _cli(tmp_path, "search", "--policy", "metaworld/reach-v3/flow", "--task", "metaworld/reach-v3",
+                "--workers", "1000", "--out", str(out))
+    assert done.returncode == 2 and "--workers" in done.stderr and not out.exists()
 
 
 def test_the_api_names_unknown_options_and_takes_several_tasks(tmp_path):

@@ -80,9 +80,9 @@ def find_multitask_tickets(cfg: SearchConfig, out: Path) -> dict:
     expand = functools.partial(Subspace.parse(cfg.subspace, policy.noise_shape).expand,
                                noise_shape=policy.noise_shape)
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
-    with _open_store(out, cfg, run_names) as store, \
-            Engine(cfg.policy, tasks, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
-                   address=cfg.address, loaded=policy) as engine:
+    with Engine(cfg.policy, tasks, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
+                address=cfg.address, loaded=policy) as engine, \
+            _open_store(out, cfg, run_names) as store:
         evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
         with progress_bar(evaluator, 2 * cfg.heldout * len(tasks), "held-out: base and zero ticket"):
             for name in names:
@@ -157,9 +157,9 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     tickets = list({t.id: t for t in tickets}.values())  # several tasks' searches may find one ticket
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
-    with _open_store(out, cfg, names) as store, \
-            Engine(cfg.policy, tasks, workers=cfg.workers, backend=cfg.backend, address=cfg.address,
-                   loaded=policy) as engine:
+    with Engine(cfg.policy, tasks, workers=cfg.workers, backend=cfg.backend, address=cfg.address,
+                loaded=policy) as engine, \
+            _open_store(out, cfg, names) as store:
         evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
         with progress_bar(evaluator, cfg.heldout * len(sources) * len(tasks) + cfg.heldout * len(tasks),
                           "transfer matrix"):

@@ -125,9 +125,9 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
                                noise_shape=policy.noise_shape)
     task.check()
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
-    with _open_store(out, cfg, names) as store, \
-            Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
-                   address=cfg.address, loaded=policy) as engine:
+    with Engine(cfg.policy, task, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
+                address=cfg.address, loaded=policy) as engine, \
+            _open_store(out, cfg, names) as store:
         evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
         with progress_bar(evaluator, 2 * cfg.heldout, "held-out: base and zero ticket"):
             evaluator.run([("base", base, heldout), ("zero", zero, heldout)])
