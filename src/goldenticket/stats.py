@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
+import numpy as np
+from scipy.special import gammaln
 from scipy.stats import binomtest
 
 
@@ -89,3 +93,105 @@ def sign_test(wins: int, losses: int) -> float:
     if wins + losses == 0:
         return 1.0
     return float(binomtest(wins, wins + losses, 0.5, alternative="greater").pvalue)
+
+
+def mixture_log_e(wins: int, losses: int) -> float:
+    """Log of the mixture e-value of `wins` ticket-only and `losses` base-only pairs: the
+    likelihood ratio of Bernoulli(q) against Bernoulli(1/2), averaged over q uniform on
+    [1/2, 1] (Robbins 1970). It is a nonnegative supermartingale whenever q <= 1/2."""
+    return float(_log_e_row(wins + losses)[wins])
+
+
+def _log_e_row(n: int) -> np.ndarray:
+    """mixture_log_e(w, n - w) for w = 0..n, in closed form: 2^(n+1) B(w+1, n-w+1) P(Beta > 1/2)
+    = sum_{j<=w} C(n+1, j) / ((n+1) C(n, w))."""
+    w = np.arange(n + 1)
+    log_choose = gammaln(n + 2) - gammaln(w + 1) - gammaln(n + 2 - w)  # log C(n+1, w)
+    return np.logaddexp.accumulate(log_choose) - np.log(n + 1) - (log_choose + np.log((n + 1 - w) / (n + 1)))
+
+
+@lru_cache(maxsize=8)
+def _log_e_table(cap: int) -> tuple[np.ndarray, ...]:
+    """mixture_log_e(w, k - w) for w = 0..k, for every k = 0..cap."""
+    return tuple(_log_e_row(k) for k in range(cap + 1))
+
+
+def sequential_level(log_e: float, cap: int) -> float:
+    """P(the mixture log e-value reaches `log_e` within `cap` discordant pairs), each pair a fair
+    coin: exact, by dynamic programming over (pairs, ticket-only wins)."""
+    table, alive, crossed = _log_e_table(cap), np.ones(1), 0.0
+    if log_e <= table[0][0]:  # reached before the first pair: the e-value starts at 1
+        return 1.0
+    for k in range(1, cap + 1):
+        step = np.zeros(k + 1)
+        step[1:] += alive / 2
+        step[:-1] += alive / 2
+        hit = table[k] >= log_e
+        crossed += step[hit].sum()
+        step[hit] = 0.0
+        alive = step
+    return float(crossed)
+
+
+@lru_cache(maxsize=64)
+def sequential_threshold(cap: int, alpha: float) -> float:
+    """The smallest log e-value whose level within `cap` pairs (sequential_level) is below
+    alpha; inf when even `cap` wins in a row are not that rare."""
+    values = np.unique(np.concatenate(_log_e_table(cap)))
+    low, high = 0, len(values)
+    while low < high:  # the level falls as the threshold rises
+        middle = (low + high) // 2
+        if sequential_level(values[middle], cap) < alpha:
+            high = middle
+        else:
+            low = middle + 1
+    return float(values[low]) if low < len(values) else math.inf
+
+
+@dataclass(frozen=True)
+class Sequential:
+    """A sequential sign test after `pairs` pairs: the discordant counts, the largest e-value so
+    far, its threshold and exact p-value, and the decision ("golden", "not golden", or None to
+    go on) with its reason ("threshold reached", "out of reach", "cap reached")."""
+
+    pairs: int
+    ticket_only: int
+    base_only: int
+    e_value: float
+    threshold: float
+    p_value: float
+    decision: str | None
+    reason: str | None
+
+
+def sequential_sign_test(ticket: Sequence[bool], base: Sequence[bool], cap: int,
+                         alpha: float = 0.05) -> Sequential:
+    """One-sided sequential test that the ticket succeeds more often than the base, decided
+    after each pair (one episode per arm) until the first decision, with at most `cap` pairs.
+
+    Only discordant pairs count (Wald 1947, double dichotomies; McNemar): under no difference a
+    discordant pair favours the ticket with probability 1/2 when a pair shares its scene, and at
+    most 1/2 for independent episodes. The statistic is the mixture e-value (mixture_log_e);
+    golden once it reaches the threshold whose chance of being reached within `cap` pairs under
+    no difference is below alpha (sequential_threshold, exact), so the type-I error is at most
+    alpha whenever the test stops; not golden once the threshold is out of reach within the cap.
+    p_value: the exact chance under no difference of an e-value as large as the largest seen.
+    """
+    if len(ticket) != len(base):
+        raise ValueError(f"paired outcomes differ in length: ticket {len(ticket)}, base {len(base)}")
+    if len(ticket) > cap:
+        raise ValueError(f"{len(ticket)} pairs exceed the cap of {cap}")
+    threshold, table = sequential_threshold(cap, alpha), _log_e_table(cap)
+    wins = losses = pairs = 0
+    best, decision, reason = 0.0, None, None
+    for pairs, (t, b) in enumerate(zip(ticket, base, strict=True), 1):
+        wins, losses = wins + (bool(t) and not b), losses + (bool(b) and not t)
+        best = max(best, table[wins + losses][wins])
+        if best >= threshold:
+            decision, reason = "golden", "threshold reached"
+        elif table[wins + losses + cap - pairs][wins + cap - pairs] < threshold:
+            decision, reason = "not golden", "cap reached" if pairs == cap else "out of reach"
+        if decision:
+            break
+    return Sequential(pairs, wins, losses, float(np.exp(best)), float(np.exp(threshold)),
+                      min(1.0, sequential_level(best, cap)), decision, reason)
