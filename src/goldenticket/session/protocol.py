@@ -1,17 +1,24 @@
-"""A real-robot search session: the paper's protocol, scored by a person, kept in SQLite.
+"""A real-robot search session scored by a person, kept in SQLite.
 
-Search: N random candidate tickets x K episodes, in a shuffled order. Confirm: the two
-candidates with the most search successes (ties: the earlier candidate) and the base policy,
-M episodes each, interleaved in a shuffled order so the operator cannot tell which arm runs.
+Two protocols over N random candidate tickets, each episode's arm hidden from the operator:
+- fixed (the paper's): N x K search episodes in a shuffled order; then the two candidates with
+  the most search successes (ties: the earlier candidate) and the base policy, M episodes each,
+  interleaved in a shuffled order; the verdict once every episode is scored.
+- sequential: a race (successive halving) spends the same N x K search episodes in rounds, each
+  keeping the better half of the candidates, in a shuffled order; then the one finalist and the
+  base run in pairs (one episode each, in an order drawn from the seed), at most M pairs, and
+  the session stops at the first pair after which the sequential sign test decides.
 Every score is written the moment it is entered; only the due episode (the first unscored one)
-can be scored, so a restart resumes where it stopped. The files beside the store (the
-finalists' tickets, and once complete summary.json and verdict.png) are derived from it and
-brought in line with it whenever the session is opened or asked what is due.
+can be scored, and what is planned next is a function of the seed and the scores, so a restart
+resumes where it stopped. The files beside the store (the finalists' tickets, and once complete
+summary.json and verdict.png) are derived from it and brought in line with it whenever the
+session is opened or asked what is due.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import sqlite3
 import time
@@ -25,12 +32,15 @@ from scipy.stats import fisher_exact
 
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
-from goldenticket.stats import Rate, holm_adjust, paired_exact_test
+from goldenticket.stats import Rate, Sequential, holm_adjust, paired_exact_test, sequential_sign_test
 from goldenticket.tickets import Ticket
 
 FILE = "session.sqlite"
 BASE = "base"
 MAX_EPISODES = 100_000
+MAX_CAP = 1000  # pairs under sequential stopping: its test is calibrated exactly over the cap
+STOPPING = ("sequential", "fixed")
+DEFAULT_CONFIRM = {"fixed": 50, "sequential": 75}  # sequential: never more episodes than fixed
 _SCHEMA = """
 CREATE TABLE plan (id INTEGER PRIMARY KEY CHECK (id = 0), value TEXT NOT NULL);
 CREATE TABLE arms (arm TEXT PRIMARY KEY, noise BLOB);
@@ -63,8 +73,14 @@ class Plan:
     episodes_per_ticket: int
     confirm: int
     seed: int
+    stopping: str = "sequential"
+    alpha: float = 0.05
 
     def __post_init__(self) -> None:
+        if self.stopping not in STOPPING:
+            raise UserError(f"--stopping must be one of {', '.join(STOPPING)}, got {self.stopping!r}")
+        if not 0 < self.alpha < 1:
+            raise UserError(f"--alpha must be between 0 and 1, got {self.alpha}")
         for name, value, least in (("tickets", self.tickets, 2), ("confirm", self.confirm, 1),
                                    ("episodes-per-ticket", self.episodes_per_ticket, 1)):
             if value < least:
@@ -72,28 +88,76 @@ class Plan:
                 raise UserError(f"--{name} must be at least {least}{why}, got {value}")
         if self.episodes > MAX_EPISODES:
             raise UserError(f"a session plans at most {MAX_EPISODES} episodes (tickets x episodes-per-ticket "
-                            f"+ 3 x confirm), got {self.episodes}")
+                            f"+ {self.arms} x confirm), got {self.episodes}")
+        least = math.floor(math.log2(1 / self.alpha)) + 1  # fewer pairs cannot reach the level alpha
+        if self.stopping == "sequential" and not least <= self.confirm <= MAX_CAP:
+            raise UserError(f"under sequential stopping --confirm (the cap of pairs) must be between {least} "
+                            f"(for --alpha {self.alpha}) and {MAX_CAP}, got {self.confirm}")
+
+    @property
+    def rounds(self) -> list[tuple[int, int, int]]:
+        """The search rounds as (candidates, episodes each, candidates kept): fixed, one round of
+        N x K keeping 2; sequential, successive halving of the N x K episodes (Karnin, Koren and
+        Somekh 2013): ceil(log2 N) rounds with an equal share each, keeping the better half."""
+        if self.stopping == "fixed":
+            return [(self.tickets, self.episodes_per_ticket, 2)]
+        budget, count = self.tickets * self.episodes_per_ticket, math.ceil(math.log2(self.tickets))
+        rounds, alive = [], self.tickets
+        while alive > 1:
+            rounds.append((alive, max(1, budget // (alive * count)), -(-alive // 2)))
+            alive = rounds[-1][2]
+        return rounds
+
+    @property
+    def arms(self) -> int:
+        """Arms in the confirm phase: the finalists and the base."""
+        return self.rounds[-1][2] + 1
+
+    @property
+    def starts(self) -> list[int]:
+        """The first episode of each search round and of the confirm phase, then the end."""
+        starts = [0]
+        for candidates, each, _ in self.rounds:
+            starts.append(starts[-1] + candidates * each)
+        return [*starts, starts[-1] + self.arms * self.confirm]
 
     @property
     def episodes(self) -> int:
-        """Every episode of the session: N x K search, 3 x M confirm."""
-        return self.tickets * self.episodes_per_ticket + 3 * self.confirm
+        """Every episode the session may run: the search rounds, then M per confirm arm."""
+        return self.starts[-1]
 
 
 @dataclass(frozen=True)
 class NextEpisode:
     """What the robot runs next: a ticket's noise for every policy call, or, for the base arm
-    (`noise` None), fresh N(0, I) noise per call from `numpy.random.default_rng(gaussian_seed)`."""
+    (`noise` None), fresh N(0, I) noise of `noise_shape` per call from
+    `numpy.random.default_rng(gaussian_seed)`; `noise_source()` gives either as a function."""
 
     episode: int
     ticket_id: str
     noise: np.ndarray | None
     gaussian_seed: list[int] | None
+    noise_shape: tuple[int, int] | None = None
 
     def to_json(self) -> dict:
         noise = None if self.noise is None else self.noise.tolist()
         return {"episode": self.episode, "ticket_id": self.ticket_id, "noise": noise,
-                "gaussian_seed": self.gaussian_seed}
+                "gaussian_seed": self.gaussian_seed, "noise_shape": self.noise_shape}
+
+    @classmethod
+    def from_json(cls, data: dict) -> NextEpisode:
+        noise = None if data["noise"] is None else np.asarray(data["noise"], dtype=np.float32)
+        shape = data.get("noise_shape")
+        return cls(data["episode"], data["ticket_id"], noise, data["gaussian_seed"],
+                   None if shape is None else tuple(shape))
+
+    def noise_source(self):
+        """A function returning the noise for the next policy call: the ticket every time, or the
+        base arm's next N(0, I) draw."""
+        if self.noise is not None:
+            return lambda: self.noise
+        rng = np.random.default_rng(self.gaussian_seed)
+        return lambda: rng.standard_normal(self.noise_shape, dtype=np.float32)
 
 
 class Session:
@@ -108,15 +172,16 @@ class Session:
         self._con = _connect(self.path)
         try:
             fields = json.loads(self._one("SELECT value FROM plan")[0])
-        except (sqlite3.DatabaseError, TypeError):
+            fields = {"stopping": "fixed", "alpha": 0.05} | fields  # planned before sequential stopping
+            self.plan = Plan(**{**fields, "noise_shape": tuple(fields["noise_shape"])})
+        except (sqlite3.DatabaseError, TypeError, ValueError, KeyError):
             raise UserError(f"{self.path}: not a goldenticket session, or damaged") from None
-        self.plan = Plan(**{**fields, "noise_shape": tuple(fields["noise_shape"])})
         self.name = self.path.parent.resolve().name
         self._refresh()
 
     @classmethod
     def new(cls, folder: str | Path, plan: Plan) -> Session:
-        """Plan the search phase and write it; refuses a folder that holds a session already."""
+        """Plan the first search round and write it; refuses a folder that holds a session already."""
         path = Path(folder) / FILE
         if path.exists():
             raise UserError(f"{path} exists: a session is already planned there (serve or score it)")
@@ -124,7 +189,7 @@ class Session:
         rng = np.random.default_rng([plan.seed, 0])
         candidates = rng.standard_normal((plan.tickets, *plan.noise_shape), dtype=np.float32)
         arms = {_ticket_id(noise, plan): noise for noise in candidates}
-        order = [arm for arm in arms for _ in range(plan.episodes_per_ticket)]
+        order = [arm for arm in arms for _ in range(plan.rounds[0][1])]
         rng.shuffle(order)
         con = _connect(path)
         with con:
@@ -138,7 +203,8 @@ class Session:
         return cls(folder)
 
     def next(self) -> NextEpisode | None:
-        """The due episode (planning the confirm phase once search is scored), or None when done."""
+        """The due episode (planning the next round or the confirm phase once the last is scored),
+        or None when the session is complete."""
         due = self._refresh()["due"]
         return None if due is None else self.episode(due)
 
@@ -146,27 +212,28 @@ class Session:
         """What the robot runs for one planned episode."""
         arm = self._one("SELECT arm FROM episodes WHERE episode = ?", (episode,))[0]
         if arm == BASE:
-            return NextEpisode(episode, BASE, None, [self.plan.seed, episode])
-        return NextEpisode(episode, arm, self._noise(arm), None)
+            return NextEpisode(episode, BASE, None, [self.plan.seed, episode], self.plan.noise_shape)
+        return NextEpisode(episode, arm, self._noise(arm), None, self.plan.noise_shape)
 
     def score(self, episode: int, success: bool, note: str = "", scene: str | None = None) -> None:
         """Record the due episode's outcome, committed at once; ScoreConflict (naming the due
         episode) for any other."""
         self._check_planned(episode)
-        self._plan_confirm_if_due()
+        self._plan_next_if_due()
         with self._transaction() as con:
             due = self._due()
             if episode != due:
                 scored = self._one("SELECT success IS NOT NULL FROM episodes WHERE episode = ?", (episode,))
                 why = "scored already" if scored and scored[0] else "not due"
-                raise ScoreConflict(f"episode {episode} is {why}; the due episode is {due}", due=due)
+                then = "the session is complete" if due is None else f"the due episode is {due}"
+                raise ScoreConflict(f"episode {episode} is {why}; {then}", due=due)
             con.execute("UPDATE episodes SET success = ?, note = ?, scene = ?, scored_at = ?, "
                         "entry = (SELECT COALESCE(MAX(entry), 0) + 1 FROM episodes) WHERE episode = ?",
                         (int(bool(success)), note, scene, time.time(), episode))
 
     def undo(self, episode: int) -> None:
-        """Unscore `episode`, which must be the last score entered (and drop an unstarted confirm
-        plan that depended on it); ScoreConflict (naming the last scored episode) otherwise."""
+        """Unscore `episode`, which must be the last score entered (and drop the unstarted rounds
+        planned from it); ScoreConflict (naming the last scored episode) otherwise."""
         self._check_planned(episode)
         with self._transaction() as con:
             last = self._last_scored()
@@ -175,22 +242,25 @@ class Session:
                                     last_scored=last)
             con.execute("UPDATE episodes SET success = NULL, note = NULL, scene = NULL, scored_at = NULL, "
                         "entry = NULL WHERE episode = ?", (episode,))
-            if self._one("SELECT phase FROM episodes WHERE episode = ?", (episode,))[0] == "search":
-                con.execute("DELETE FROM episodes WHERE phase = 'confirm'")
+            con.execute("DELETE FROM episodes WHERE episode >= ?",
+                        (min(s for s in self.plan.starts if s > episode),))
 
     def status(self) -> dict:
-        """Scored and total episodes (planned grows by 3 x M when the confirm phase is planned),
-        the due and the last scored episode, and the verdict once every episode is scored."""
+        """Scored episodes and the most the session may run (`total`), those planned so far, the
+        due and the last scored episode, the stopping rule, what is due in words (`stage`, never
+        the arm), and the verdict once the session is complete."""
         return self._refresh()
 
     def verdict(self) -> dict:
-        """Confirm-phase success per arm with Wilson intervals, and each finalist's one-sided
-        p-value against the base, Holm-adjusted over the two: a paired exact test when scene ids
-        pair every finalist episode with a base episode, else Fisher's exact test (unpaired)."""
+        """The confirm phase's success per arm with Wilson intervals, and each finalist's one-sided
+        p-value against the base. Fixed: Holm-adjusted over the two finalists, from a paired exact
+        test when scene ids pair every finalist episode with a base episode, else Fisher's exact
+        test (unpaired). Sequential: the sequential sign test on the pairs, and when and why the
+        session stopped (`stopping`)."""
         status = self.status()
         if "verdict" in status:
             return status["verdict"]
-        raise UserError(f"the session is not finished: {status['scored']} of {status['total']} "
+        raise UserError(f"the session is not finished: {status['scored']} of at most {status['total']} "
                         "episodes scored")
 
     def scores(self) -> list[dict]:
@@ -202,10 +272,10 @@ class Session:
                 self._con.execute(f"SELECT {', '.join(cols)} FROM episodes ORDER BY episode")]
 
     def _refresh(self) -> dict:
-        """Plan the confirm phase if due, bring the derived files in line with the store, and
-        return the status."""
+        """Plan the next round or the confirm phase if due, bring the derived files in line with
+        the store, and return the status."""
         self._check_store()
-        self._plan_confirm_if_due()
+        self._plan_next_if_due()
         self._save_tickets()
         status = self._status()
         self._save_verdict(status.get("verdict"))
@@ -213,15 +283,32 @@ class Session:
 
     def _status(self) -> dict:
         scored, planned = self._one("SELECT COUNT(success), COUNT(*) FROM episodes")
-        search = self.plan.tickets * self.plan.episodes_per_ticket
+        due = self._due()
         status = {"scored": scored, "total": self.plan.episodes, "planned": planned,
-                  "phase": "confirm" if planned > search else "search", "due": self._due(),
-                  "last_scored": self._last_scored()}
-        if scored == self.plan.episodes:
+                  "phase": "confirm" if planned > self.plan.starts[-2] else "search", "due": due,
+                  "last_scored": self._last_scored(), "stopping": self.plan.stopping,
+                  "stage": self._stage(due)}
+        if due is None and planned == self.plan.episodes:
             status["verdict"] = self._verdict()
         return status
 
+    def _stage(self, due: int | None) -> str:
+        """What the due episode is, in words for the operator (never its arm)."""
+        if due is None:
+            return "complete"
+        rounds, confirm = len(self.plan.rounds), self.plan.starts[-2]
+        if due < confirm:
+            round_ = sum(start <= due for start in self.plan.starts[1:-2]) + 1
+            return "search phase" + (f", round {round_} of {rounds}" if rounds > 1 else "")
+        if self.plan.stopping == "fixed":
+            return "confirm phase"
+        pair, run = divmod(due - confirm, 2)
+        scene = "the same scene as run 1" if run else "set up a new scene"
+        return f"confirm phase, pair {pair + 1} of at most {self.plan.confirm}, run {run + 1} of 2: {scene}"
+
     def _verdict(self) -> dict:
+        if self.plan.stopping == "sequential":
+            return self._sequential_verdict()
         rows = self._con.execute("SELECT arm, success, scene FROM episodes WHERE phase = 'confirm' "
                                  "AND success IS NOT NULL ORDER BY episode").fetchall()
         outcomes: dict[str, dict[str | None, bool]] = {}
@@ -241,38 +328,102 @@ class Session:
                 table = [[sum(lists[arm]), len(lists[arm]) - sum(lists[arm])],
                          [sum(lists[BASE]), len(lists[BASE]) - sum(lists[BASE])]]
                 p_raw.append(float(fisher_exact(table, alternative="greater").pvalue))
+        alpha = self.plan.alpha
         arms = {BASE: Rate.of(lists[BASE]).to_dict()}
         for arm, p in zip(finalists, holm_adjust(p_raw), strict=True):
             arms[arm] = {**Rate.of(lists[arm]).to_dict(), "p_value": p, "test": tests[arm],
-                         "golden": p < 0.05, "verdict": "golden" if p < 0.05 else "not golden"}
+                         "golden": p < alpha, "verdict": "golden" if p < alpha else "not golden"}
         used = " and ".join(sorted(set(tests.values())))
-        return {"arms": arms, "note": f"p-values: {used}; one-sided, finalist better than base, "
-                                      "Holm-adjusted over the 2 finalists; 'golden' means p < 0.05"}
+        stopping = {"rule": "fixed", "alpha": alpha, "episodes": self.plan.episodes,
+                    "reason": "every planned episode scored",
+                    "why": f"the fixed protocol: all {self.plan.episodes} planned episodes scored"}
+        return {"arms": arms, "stopping": stopping,
+                "note": f"p-values: {used}; one-sided, finalist better than base, Holm-adjusted over the "
+                        f"2 finalists; 'golden' means p < {alpha:g}"}
 
-    def _plan_confirm_if_due(self) -> None:
-        if not self._confirm_due():
+    def _sequential_verdict(self) -> dict:
+        finalist, ticket, base, by_scene = self._confirm_pairs()
+        test = self._test()
+        name = "sequential sign test, " + ("pairs matched by scene id" if by_scene else "unpaired episodes")
+        arms = {BASE: Rate.of(base).to_dict(),
+                finalist: {**Rate.of(ticket).to_dict(), "p_value": test.p_value, "test": name,
+                           "golden": test.decision == "golden", "verdict": test.decision}}
+        reason = "cap reached" if test.pairs == self.plan.confirm else "decided early"
+        e, threshold = f"{test.e_value:.3g}", f"{test.threshold:.3g}"
+        detail = {"threshold reached": f"the e-value reached {e} (threshold {threshold})",
+                  "out of reach": f"the e-value (at most {e} so far) cannot reach {threshold} within the cap",
+                  "cap reached": f"the e-value stayed below {threshold} (at most {e})"}
+        scored, stopped_at = self._one("SELECT COUNT(success), MAX(scored_at) FROM episodes")
+        stopping = {"rule": "sequential", "test": name, "alpha": self.plan.alpha, "cap": self.plan.confirm,
+                    "threshold": test.threshold, "e_value": test.e_value, "pairs": test.pairs,
+                    "ticket_only": test.ticket_only, "base_only": test.base_only, "episodes": scored,
+                    "stopped_at": stopped_at, "reason": reason,
+                    "why": f"{reason} after {test.pairs} of at most {self.plan.confirm} pairs ({scored} "
+                           f"episodes in all): {detail[test.reason]}; {test.decision}"}
+        return {"arms": arms, "stopping": stopping,
+                "note": f"p-value: the sequential sign test, one-sided, ticket better than base, tested "
+                        f"after every pair of the confirm phase; 'golden' means its mixture e-value reached "
+                        f"{threshold}, which under no difference happens within {self.plan.confirm} pairs "
+                        f"with chance below {self.plan.alpha:g} (p < {self.plan.alpha:g})"}
+
+    def _test(self) -> Sequential | None:
+        """The sequential sign test on the confirm pairs scored so far; None for a fixed session."""
+        if self.plan.stopping == "fixed":
+            return None
+        _, ticket, base, _ = self._confirm_pairs()
+        return sequential_sign_test(ticket, base, self.plan.confirm, self.plan.alpha)
+
+    def _confirm_pairs(self) -> tuple[str | None, list[bool], list[bool], bool]:
+        """The finalist, its and the base's outcomes over the scored confirm pairs, and whether
+        each pair's two episodes name the same scene."""
+        rows = self._con.execute("SELECT arm, success, scene FROM episodes WHERE episode >= ? AND success "
+                                 "IS NOT NULL ORDER BY episode", (self.plan.starts[-2],)).fetchall()
+        pairs = [sorted(rows[i:i + 2], key=lambda r: r[0] == BASE) for i in range(0, len(rows) - 1, 2)]
+        finalist = next(iter(self._finalists()), None)
+        by_scene = all(a[2] is not None and a[2] == b[2] for a, b in pairs)
+        return finalist, [bool(a[1]) for a, _ in pairs], [bool(b[1]) for _, b in pairs], by_scene
+
+    def _plan_next_if_due(self) -> None:
+        if self._next_stage() is None:
             return
         with self._transaction() as con:
-            if not self._confirm_due():  # another process planned it meanwhile
+            stage = self._next_stage()
+            if stage is None:  # another process planned it meanwhile
                 return
-            wins = self._search_successes()
-            top = sorted(wins, key=lambda a: -wins[a])[:2]  # stable: ties keep candidate order
-            arms = [arm for arm in (*top, BASE) for _ in range(self.plan.confirm)]
-            np.random.default_rng([self.plan.seed, 1]).shuffle(arms)
-            start = self.plan.tickets * self.plan.episodes_per_ticket
-            con.executemany("INSERT INTO episodes (episode, phase, arm) VALUES (?, 'confirm', ?)",
-                            [(start + i, a) for i, a in enumerate(arms)])
+            kept, rounds = self._survivors(stage), self.plan.rounds
+            if stage < len(rounds):  # a search round: its candidates' episodes in a shuffled order
+                arms = [arm for arm in kept for _ in range(rounds[stage][1])]
+                np.random.default_rng([self.plan.seed, 2, stage]).shuffle(arms)
+            elif self.plan.stopping == "fixed":  # the confirm phase: every arm's episodes shuffled
+                arms = [arm for arm in (*kept, BASE) for _ in range(self.plan.confirm)]
+                np.random.default_rng([self.plan.seed, 1]).shuffle(arms)
+            else:  # pairs of the finalist and the base, each pair's order drawn from the seed
+                pairs = np.array([[kept[0], BASE]] * self.plan.confirm)
+                arms = np.random.default_rng([self.plan.seed, 1]).permuted(pairs, axis=1).ravel().tolist()
+            phase = "search" if stage < len(rounds) else "confirm"
+            con.executemany("INSERT INTO episodes (episode, phase, arm) VALUES (?, ?, ?)",
+                            [(self.plan.starts[stage] + i, phase, a) for i, a in enumerate(arms)])
 
-    def _confirm_due(self) -> bool:
-        left, confirm = self._one("SELECT SUM(success IS NULL AND phase = 'search'), "
-                                  "SUM(phase = 'confirm') FROM episodes")
-        return not left and not confirm
+    def _next_stage(self) -> int | None:
+        """The search round or confirm phase (its index in plan.starts) to plan now: the one after
+        the last planned, once every planned episode is scored."""
+        scored, planned = self._one("SELECT COUNT(success), COUNT(*) FROM episodes")
+        starts = self.plan.starts[:-1]
+        return starts.index(planned) if scored == planned and planned in starts else None
 
-    def _search_successes(self) -> dict[str, int]:
-        """Search successes per candidate, in candidate order."""
-        return dict(self._con.execute(
-            "SELECT arms.arm, SUM(success) FROM arms JOIN episodes USING (arm) WHERE phase = 'search' "
-            "GROUP BY arms.arm ORDER BY arms.rowid").fetchall())
+    def _survivors(self, stage: int) -> list[str]:
+        """The candidates of search round `stage` - 1 that go on, best first (ties: the earlier
+        candidate)."""
+        ran = {a for (a,) in self._con.execute("SELECT DISTINCT arm FROM episodes WHERE episode >= ? AND "
+                                               "episode < ?", tuple(self.plan.starts[stage - 1:stage + 1]))}
+        wins = {arm: won for arm, (won, _) in self._search_record().items() if arm in ran}
+        return sorted(wins, key=lambda a: -wins[a])[:self.plan.rounds[stage - 1][2]]
+
+    def _search_record(self) -> dict[str, tuple[int, int]]:
+        """Search successes and scored episodes per candidate, in candidate order."""
+        return {arm: (int(won or 0), n) for arm, won, n in self._con.execute(
+            "SELECT arms.arm, SUM(success), COUNT(success) FROM arms JOIN episodes USING (arm) "
+            "WHERE phase = 'search' GROUP BY arms.arm ORDER BY arms.rowid")}
 
     def _finalists(self) -> list[str]:
         return [a for (a,) in self._con.execute("SELECT DISTINCT arm FROM episodes WHERE phase = 'confirm' "
@@ -285,12 +436,11 @@ class Session:
         for old in folder.glob("*.safetensors"):
             if old.stem not in finalists and old.is_file():
                 old.unlink()
-        wins = self._search_successes() if finalists else {}
+        record = self._search_record() if finalists else {}
         for arm in finalists:
             if not (folder / f"{arm}.safetensors").is_file():
                 meta = {"policy": self.plan.policy, "policy_fingerprint": self.plan.policy_fingerprint,
-                        "session_search": {"successes": int(wins[arm]),
-                                           "episodes": self.plan.episodes_per_ticket}}
+                        "session_search": {"successes": record[arm][0], "episodes": record[arm][1]}}
                 Ticket(self._noise(arm), meta).save(folder / f"{arm}.safetensors")
 
     def _save_verdict(self, verdict: dict | None) -> None:
@@ -300,15 +450,18 @@ class Session:
             summary.unlink(missing_ok=True)
             png.unlink(missing_ok=True)
             return
+        record = self._search_record()
         text = json.dumps({"session": self.name, "plan": asdict(self.plan),
-                           "search_successes": self._search_successes(),
+                           "search_successes": {arm: won for arm, (won, _) in record.items()},
+                           "search_episodes": {arm: n for arm, (_, n) in record.items()},
                            "tickets": {a: f"tickets/{a}.safetensors" for a in self._finalists()},
                            "verdict": verdict}, indent=2) + "\n"
         if png.is_file() and summary.is_file() and summary.read_text() == text:
             return
         from goldenticket.plots import arms_png
 
-        arms_png(verdict["arms"], png, f"Session {self.name}: {self.plan.policy}",
+        stopped = "" if self.plan.stopping == "fixed" else f" ({verdict['stopping']['reason']})"
+        arms_png(verdict["arms"], png, f"Session {self.name}: {self.plan.policy}{stopped}",
                  what="confirm-phase success", unit="episodes per arm")
         write_atomic(summary, text)  # last: a summary.json that matches says verdict.png is written
 
@@ -336,7 +489,11 @@ class Session:
             raise UserError(f"episode {episode} is not in the plan (episodes 0 to {self.plan.episodes - 1})")
 
     def _due(self) -> int | None:
-        return self._one("SELECT MIN(episode) FROM episodes WHERE success IS NULL")[0]
+        """The first unscored episode, unless the sequential test has decided."""
+        due = self._one("SELECT MIN(episode) FROM episodes WHERE success IS NULL")[0]
+        if due is not None and due >= self.plan.starts[-2] and (test := self._test()) and test.decision:
+            return None
+        return due
 
     def _last_scored(self) -> int | None:
         row = self._one("SELECT episode FROM episodes WHERE entry IS NOT NULL ORDER BY entry DESC LIMIT 1")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from goldenticket.errors import UserError
 from goldenticket.report import verdict_table
 from goldenticket.session.protocol import ScoreConflict, Session
 
@@ -13,12 +14,18 @@ HELP = "s = success, f = failure (a note may follow: `f gripper slipped`), u = u
 def score_in_terminal(session: Session, read: Callable[[str], str] = input) -> int:
     """Ask for each due episode's outcome until the session is complete or the operator quits."""
     print(HELP)
+    most = "at most " if session.plan.stopping == "sequential" else ""
     while (status := session.status())["due"] is not None:
         due = status["due"]
         try:
-            answer = read(f"[{status['scored']}/{status['total']}] episode {due}: ").strip()
+            answer = read(f"[{status['scored']}/{most}{status['total']}] episode {due} ({status['stage']}): ")
+            answer.encode()  # bytes that are not UTF-8 arrive as surrogates, which nothing can store
         except EOFError:  # input closed: stop as with q
             answer = "q"
+        except UnicodeError:
+            raise UserError("the input is not UTF-8 text; every score entered is saved, run the same "
+                            "command to go on") from None
+        answer = answer.strip()
         key, _, note = answer.partition(" ")
         if key.lower() in ("s", "f"):
             try:
@@ -34,6 +41,7 @@ def score_in_terminal(session: Session, read: Callable[[str], str] = input) -> i
             print(HELP)
     print(verdict_table(status["verdict"]["arms"], title="arm"))
     print(status["verdict"]["note"])
+    print(f"Stopped: {status['verdict']['stopping']['why']}")
     print(f"Wrote summary.json and verdict.png in {session.path.parent}")
     return 0
 
