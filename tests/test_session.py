@@ -29,7 +29,7 @@ POLICY, TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
 
 def _plan(**kw) -> Plan:
     fields = dict(policy="p", policy_fingerprint="fp", noise_shape=(8, 4), tickets=3,
-                  episodes_per_ticket=2, confirm=3, seed=0) | kw
+                  episodes_per_ticket=2, confirm=3, seed=0, stopping="fixed") | kw
     return Plan(**fields)
 
 
@@ -45,7 +45,7 @@ def _client(folder, **kw):
 def test_protocol_scores_once_undoes_and_resumes(tmp_path):
     session = Session.new(tmp_path, _plan())
     assert session.status() == {"scored": 0, "total": 15, "planned": 6, "phase": "search", "due": 0,
-                                "last_scored": None}
+                                "last_scored": None, "stopping": "fixed", "stage": "search phase"}
     first = session.next()
     session.score(first.episode, True, "clean grasp")
     with pytest.raises(ScoreConflict, match="scored already"):
@@ -205,7 +205,7 @@ def test_session_commands_refuse_bad_input_in_one_line(tmp_path, capsys):
     out = tmp_path / "s"
     assert main(["session", "new", "--policy", POLICY, "--out", str(out), "--tickets", "1"]) == 2
     assert main(["session", "new", "--policy", POLICY, "--out", str(out), "--tickets", "2",
-                 "--episodes-per-ticket", "1", "--confirm", "1"]) == 0
+                 "--episodes-per-ticket", "1", "--confirm", "1", "--stopping", "fixed"]) == 0
     assert main(["session", "new", "--policy", POLICY, "--out", str(out)]) == 2
     assert main(["session", "serve", str(out), "--host", "0.0.0.0"]) == 2
     assert main(["session", "score", str(tmp_path / "nothing")]) == 2
@@ -438,3 +438,28 @@ def test_the_verdict_plot_shows_every_marker_and_label_whole(tmp_path, monkeypat
         if line.get_marker() not in ("None", None, ""):
             whole = inside.padded(-line.get_markersize() * fig.dpi / 72 / 2)  # the marker's radius
             assert all(whole.contains(x, y) for x, y in ax.transData.transform(line.get_xydata()))
+
+
+def test_a_plan_that_is_not_json_is_one_clear_error(tmp_path, capsys):
+    import sqlite3
+
+    from goldenticket.cli import main
+
+    Session.new(tmp_path, _plan())
+    con = sqlite3.connect(tmp_path / "session.sqlite")
+    con.execute("UPDATE plan SET value = '{\"policy\": '")
+    con.commit()
+    with pytest.raises(UserError, match="not a goldenticket session, or damaged"):
+        Session(tmp_path)
+    assert main(["session", "score", str(tmp_path)]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(errors) == 1 and "damaged" in errors[0]
+
+
+def test_input_that_is_not_utf8_stops_the_terminal_scorer_in_one_line(tmp_path):
+    Session.new(tmp_path, _plan())
+    proc = subprocess.run([sys.executable, "-m", "goldenticket.cli", "session", "score", str(tmp_path)],
+                          input=b"s\nf \xff\xfe\n", capture_output=True, timeout=120)
+    errors = proc.stderr.decode().splitlines()
+    assert proc.returncode == 2 and len(errors) == 1 and "not UTF-8" in errors[0]
+    assert [r["success"] for r in Session(tmp_path).scores()[:2]] == [1, None]  # the score before it is saved
