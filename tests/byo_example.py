@@ -60,6 +60,11 @@ class BrokenStep(PointReach):
         raise RuntimeError("the robot fell over")
 
 
+class BrokenReset(PointReach):
+    def reset(self, seed=None, options=None):
+        raise RuntimeError("no table in the scene")
+
+
 class Silent(PointReach):
     def step(self, action):
         obs, reward, terminated, truncated, _ = super().step(action)
@@ -154,6 +159,10 @@ def make_unseeded_in_pools_env():
 
 def make_broken_step_env():
     return BrokenStep()
+
+
+def make_broken_reset_env():
+    return BrokenReset()
 
 
 def make_metaworld_reach():

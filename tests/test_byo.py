@@ -154,6 +154,8 @@ FAULTS = {  # the user's code at fault: (options replacing EVALUATE's, what its 
     "act raises": (["--policy", "byo_example:make_raising_policy"],
                    "policy 'biased-controller': act() failed at " + _line_of('obs["velocity"]') +
                    ": KeyError: 'velocity'"),
+    "reset raises": (["--task", "byo_example:make_broken_reset_env"],
+                     f"reset() failed at {_line_of('no table in the scene')}: RuntimeError: no table"),
     "step raises": (["--task", "byo_example:make_broken_step_env"],
                     f"step() failed at {_line_of('the robot fell over')}: RuntimeError: the robot fell over"),
     "success predicate raises": (["--task", "byo_example:make_silent_env", "--success",

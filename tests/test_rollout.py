@@ -2,8 +2,9 @@ import numpy as np
 
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.policies import load_policy
-from goldenticket.rollout import NONFINITE, Episode, observation_digest, rollout
+from goldenticket.rollout import NONFINITE, Episode, rollout
 from goldenticket.tasks import get_task, seeds_in
+from goldenticket.tasks.base import observation_digest
 
 
 def test_results_do_not_depend_on_batch_slot():

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
 import multiprocessing as mp
 import os
 import signal
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -19,7 +18,7 @@ from goldenticket.factories import call_users, picklable
 from goldenticket.noise import NoiseSource
 from goldenticket.policies import NoisePolicy, for_task, load_policy, policy_label
 from goldenticket.tasks import OBJECTIVES, Task
-from goldenticket.tasks.base import PROGRESS_OBJECTIVES
+from goldenticket.tasks.base import PROGRESS_OBJECTIVES, observation_digest
 
 
 @dataclass(frozen=True)
@@ -63,6 +62,8 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
     start = time.perf_counter()
     obs = [call_users(env.reset, resetting, ep.seed) for env, ep in zip(envs, episodes, strict=False)]
     digests = [observation_digest(o) for o in obs]
+    history = getattr(policy, "n_obs_steps", 1)  # how many recent observations act sees (docs/contracts.md)
+    recent = [deque([o] * history, maxlen=history) for o in obs]
     samplers = [ep.source.sampler(ep.seed, policy.noise_shape) for ep in episodes]
     length = np.zeros(n, dtype=int)
     success, done = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
@@ -70,7 +71,7 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
     live, executed = list(range(n)), [[] for _ in range(n)]
     while live:
         noise = np.stack([samplers[i]() for i in live])
-        actions = call_users(policy.act, acting, stack([obs[i] for i in live]), noise)
+        actions = call_users(policy.act, acting, stack([observed(recent[i]) for i in live]), noise)
         chunks = checked_actions(policy, actions, len(live))
         for i, chunk, finite in zip(live, chunks, np.isfinite(chunks).all(axis=(1, 2)), strict=True):
             if not finite:
@@ -78,6 +79,7 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
                 continue
             for action in chunk:
                 obs[i], success[i], done[i] = call_users(envs[i].step, stepping, action)
+                recent[i].append(obs[i])
                 length[i] += 1
                 if record_actions:
                     executed[i].append(action)
@@ -106,14 +108,11 @@ def _progress(env, success: bool, task: str) -> float:
     return min(1.0, max(0.0, float(call_users(progress, f"task {task!r}: progress()"))))
 
 
-def observation_digest(obs) -> str:
-    """sha256 of one observation (an array, or a dict of arrays key by key), hashed as
-    `tasks.gym.observation_digest` hashes initial observations."""
-    digest = hashlib.sha256()
-    parts = obs.items() if isinstance(obs, dict) else [("", obs)]
-    for key, value in sorted(parts, key=lambda kv: kv[0]):
-        digest.update(json.dumps(key).encode() + np.ascontiguousarray(value).tobytes())
-    return digest.hexdigest()
+
+def observed(recent: deque):
+    """What act gets of one episode: its latest observation or, for a policy with n_obs_steps > 1, its
+    last n_obs_steps stacked oldest first (the first observation repeated at the start)."""
+    return recent[0] if len(recent) == 1 else stack(list(recent))
 
 
 def stack(observations: list) -> np.ndarray | dict[str, np.ndarray]:

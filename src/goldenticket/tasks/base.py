@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
@@ -70,6 +72,15 @@ OBJECTIVES: dict[str, Callable[[bool, int, int, float], float]] = {
 }
 PROGRESS_OBJECTIVES = frozenset({"success-progress"})  # the objectives that read Env.progress()
 FRONT_OBJECTIVES = tuple(o for o in OBJECTIVES if o not in PROGRESS_OBJECTIVES)  # from success, length
+
+
+def observation_digest(obs) -> str:
+    """sha256 of one observation: an array, or a dict of arrays key by key (in sorted order)."""
+    digest = hashlib.sha256()
+    parts = obs.items() if isinstance(obs, dict) else [("", obs)]
+    for key, value in sorted(parts, key=lambda kv: kv[0]):
+        digest.update(json.dumps(key).encode() + np.ascontiguousarray(value).tobytes())
+    return digest.hexdigest()
 
 
 @functools.cache
