@@ -221,8 +221,8 @@ def test_session_commands_refuse_bad_input_in_one_line(tmp_path, capsys):
 
 
 def test_readme_robot_loop_runs_as_written(tmp_path):
-    """README's robot loop against a live server; here the 'robot' is Meta-World and it also
-    plays the operator, posting each true outcome."""
+    """README's robot loop against a live server, for a policy that takes `noise=`; here the
+    'robot' is Meta-World and it also plays the operator, posting each true outcome."""
     from pathlib import Path
 
     readme = (Path(__file__).parent.parent / "README.md").read_text()
@@ -234,21 +234,22 @@ def test_readme_robot_loop_runs_as_written(tmp_path):
     prelude = f"""
 from goldenticket.policies import load_policy
 from goldenticket.tasks import get_task
-policy, env = load_policy({POLICY!r}), get_task({TASK!r}, max_steps=60).make_env()
-shape = policy.noise_shape
-def run_episode_on_the_robot(noise):
-    obs, success, done, steps = env.reset(due["episode"]), False, False, 0
+bundled, env = load_policy({POLICY!r}), get_task({TASK!r}, max_steps=60).make_env()
+def policy(obs, noise):
+    return bundled.act(obs[None], noise[None])[0]
+def run_episode_on_the_robot(act):
+    obs, success, done, steps = env.reset(due.episode), False, False, 0
     while not (success or done or steps >= 60):
-        for action in policy.act(obs[None], noise()[None])[0]:
+        for action in act(obs):
             obs, success, done = env.step(action)
             steps += 1
             if success or done or steps >= 60:
                 break
-    call("/score", {{"episode": due["episode"], "success": bool(success)}})
+    robot.score(due.episode, bool(success))
 """
     try:
-        (tmp_path / "robot.py").write_text(loop.replace("8765", str(port)).replace(
-            "\n\ndef call", prelude + "\n\ndef call", 1))
+        head = "from goldenticket.session import Client\n"
+        (tmp_path / "robot.py").write_text(loop.replace("8765", str(port)).replace(head, head + prelude, 1))
         proc = subprocess.run([sys.executable, "robot.py"], cwd=tmp_path, capture_output=True, text=True,
                               timeout=300)
         assert proc.returncode == 0, proc.stderr

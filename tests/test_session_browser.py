@@ -80,3 +80,32 @@ def test_an_operator_scores_a_session_in_the_browser(tmp_path, browser):
     assert [s["success"] for s in scores[:2]] == [1, 0] and scores[0]["note"] == "clean grasp"
     assert all(s["success"] is not None for s in scores)
     assert (tmp_path / "summary.json").is_file() and (tmp_path / "verdict.png").is_file()
+
+
+def test_an_operator_sees_what_is_due_and_why_a_sequential_session_stopped(tmp_path, browser):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    Session.new(tmp_path, _plan(stopping="sequential", tickets=3, episodes_per_ticket=2, confirm=6))
+    port = _free_port()
+    server = _server(tmp_path, port)
+    try:
+        browser.get(f"http://127.0.0.1:{port}/")
+        _shows(browser, "search phase, round 1 of 2")
+        _shows(browser, "0 of at most 17 episodes scored")
+        browser.find_element(By.ID, "scene").send_keys("table left")  # kept for every run
+        while (status := Session(tmp_path).status())["due"] is not None:
+            _shows(browser, f"Episode {status['due']}")
+            if status["phase"] == "confirm":
+                _shows(browser, "confirm phase, pair")
+            arm = Session(tmp_path).episode(status["due"]).ticket_id  # the operator never sees it
+            browser.find_element(By.ID, "failure" if arm == "base" else "success").click()
+            scored = status["scored"]
+            WebDriverWait(browser, 10).until(lambda c, n=scored: Session(tmp_path).status()["scored"] > n)
+        _shows(browser, "Session complete")
+        _shows(browser, "Stopped: decided early after")
+    finally:
+        server.kill()
+    verdict = Session(tmp_path).verdict()
+    assert verdict["stopping"]["test"] == "sequential sign test, pairs matched by scene id"
+    assert verdict["stopping"]["pairs"] < 6 and (tmp_path / "summary.json").is_file()

@@ -1,12 +1,13 @@
 """The session's web app: the robot's JSON API and the operator's page, on Starlette + uvicorn.
 
-    GET  /api/next    -> {"episode", "ticket_id", "noise", "gaussian_seed"} or {"done": true}
+    GET  /api/next    -> {"episode", "ticket_id", "noise", "gaussian_seed", "noise_shape"} or {"done": true}
     POST /api/score   {"episode": int, "success": bool, "note"?: str, "scene"?: str} -> {"ok": true};
                       409 {"error", "due"} for any episode but the due one
     POST /api/undo    {"episode": int} -> {"undone": episode}; 409 {"error", "last_scored"} unless
                       it names the last score entered
-    GET  /api/status  -> {"scored", "total", "due", "last_scored", "session", "policy", ...}, and
-                      "verdict" once every episode is scored
+    GET  /api/status  -> {"scored", "total" (the most it may run), "due", "last_scored", "stopping",
+                      "stage" (what is due, in words), "session", "policy", ...}, and "verdict" (with
+                      "stopping": when and why it stopped) once the session is complete
     GET  /verdict.png -> the verdict plot, once done
     GET  /            -> the operator's page (never shows which arm runs)
 
