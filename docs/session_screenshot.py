@@ -1,35 +1,26 @@
-"""Makes docs/session.png: a whole session where Meta-World plays the robot and posts each true
-outcome, then the operator page at the end, in Debian's headless Chromium.
+"""Makes docs/session.png: a whole sequential session where Meta-World plays the robot and posts
+each true outcome through the robot's Client, then the operator page at the end, in Debian's
+headless Chromium.
 
     python docs/session_screenshot.py
 """
 
-import json
 import subprocess
 import sys
 import tempfile
 import time
-import urllib.request
 from pathlib import Path
 
-import numpy as np
 from selenium import webdriver
 from selenium.webdriver.chrome.service import Service
 
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Episode, rollout
-from goldenticket.session import Plan, Session
+from goldenticket.session import Client, Plan, Session
 from goldenticket.tasks import get_task
 
 POLICY, TASK, PORT = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3", 8799
-
-
-def call(path, body=None):
-    data = None if body is None else json.dumps(body).encode()
-    request = urllib.request.Request(f"http://127.0.0.1:{PORT}/api{path}", data,
-                                     {"Content-Type": "application/json"})
-    return json.load(urllib.request.urlopen(request))
 
 
 def main() -> None:
@@ -39,12 +30,11 @@ def main() -> None:
     server = subprocess.Popen([sys.executable, "-m", "goldenticket.cli", "session", "serve", str(folder),
                                "--port", str(PORT)])
     try:
-        time.sleep(3)
-        while not (due := call("/next")).get("done"):
-            noise = due["noise"]
-            source = Gaussian(0) if noise is None else Constant(np.asarray(noise, dtype=np.float32))
-            result = rollout(policy, task, [Episode(source, due["episode"])])[0]
-            call("/score", {"episode": due["episode"], "success": result.success})
+        robot = Client(f"http://127.0.0.1:{PORT}")  # waits for the server to start
+        while (due := robot.next()) is not None:
+            source = Gaussian(0) if due.noise is None else Constant(due.noise)
+            result = rollout(policy, task, [Episode(source, due.episode)])[0]
+            robot.score(due.episode, result.success)
         options = webdriver.ChromeOptions()
         options.binary_location = "/usr/bin/chromium"
         for flag in ("--headless=new", "--no-sandbox", "--window-size=900,1350"):
