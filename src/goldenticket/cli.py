@@ -248,8 +248,8 @@ def _session_parser(sub) -> None:
                      help="sequential (default): a race (successive halving) spends the N x K search "
                           "episodes on the better half of the tickets round by round, then its finalist and "
                           "the base run in pairs until a sequential test decides (at most --confirm pairs); "
-                          "in simulation a session needed 5-37%% fewer operator episodes than fixed, at power "
-                          "within a point of fixed or higher, false golden below --alpha "
+                          "in simulation a session needed 5-37%% fewer operator episodes than fixed, at "
+                          "power within a point of fixed or higher, false golden below --alpha "
                           "(benchmarks/results/session_sequential.md). fixed: the paper's protocol, N x K "
                           "episodes, then the top 2 and the base on M each")
     new.add_argument("--alpha", type=float, default=0.05,
