@@ -75,7 +75,8 @@ def search_png(scores: list[float], episodes: list[int], path: Path, title: str,
                        edgecolors=color, linewidths=1.2, label=label)
     if judged:
         _star(ax, order[judged[0]], scores[judged[0]], "chosen ticket (best held-out success)")
-    ax.set(title=title, xlabel="tickets, in the order tried", ylabel="search score (mean objective)",
+    ax.set_title(title, loc="left")  # a long title runs on over the legend, not off the left edge
+    ax.set(xlabel="tickets, in the order tried", ylabel="search score (mean objective)",
            ylim=(min(0, *scores) - 0.05, max(1, *scores) + 0.05))
     _legend(ax)
     return _save(fig, path)
