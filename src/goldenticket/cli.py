@@ -502,13 +502,13 @@ def _session(args) -> int:
 
     if args.session_command == "new":
         from goldenticket.policies import load_policy, policy_label
-        from goldenticket.policies.registry import fingerprint
+        from goldenticket.policies.registry import identity
         from goldenticket.session.protocol import DEFAULT_CONFIRM
 
         policy = load_policy(args.policy)
         label = policy_label(args.policy)
         confirm = DEFAULT_CONFIRM[args.stopping] if args.confirm is None else args.confirm
-        plan = Plan(label, fingerprint(policy, label), tuple(policy.noise_shape), args.tickets,
+        plan = Plan(label, identity(policy), tuple(policy.noise_shape), args.tickets,
                     args.episodes_per_ticket, confirm, args.seed, args.stopping, args.alpha)
         status = Session.new(args.out, plan).status()
         print(f"Planned {status['planned']} search episodes in {args.out} ({status['stage']}); at most "
