@@ -12,6 +12,7 @@ from pathlib import Path
 
 from goldenticket.errors import UserError
 from goldenticket.factories import build, call_users, import_name, is_import_string
+from goldenticket.policies import lerobot
 from goldenticket.policies.base import NoisePolicy, TicketedPolicy
 from goldenticket.policies.mlp import MLPPolicy
 from goldenticket.tickets import Ticket
@@ -55,15 +56,17 @@ def split_steps(name: str) -> tuple[str, int | None]:
 
 
 def load_policy(name: str | NoisePolicy) -> NoisePolicy:
-    """A bundled policy by name, a policy directory (config.json + model.safetensors), where an
-    `@N` suffix sets the number of denoising steps, any NoisePolicy built by an import string
-    `package.module:factory`, or a NoisePolicy object itself (checked)."""
+    """A bundled policy by name, a policy directory (config.json + model.safetensors) or a LeRobot
+    checkpoint folder, where an `@N` suffix sets the number of denoising steps, any NoisePolicy
+    built by an import string `package.module:factory`, or a NoisePolicy object itself (checked)."""
     if not isinstance(name, str):
         return _checked(name, policy_label(name))
     if is_import_string(name):
         return _checked(build(name, "policy"), name)
     base, steps = split_steps(name)
     path = Path(base)
+    if lerobot.is_checkpoint(path):
+        return lerobot.LeRobotPolicy(path, steps, name)
     if not (path / "config.json").is_file():
         if base not in policy_names():
             raise UserError(f"unknown policy {base!r}; run `goldenticket policies` to list them")

@@ -1,0 +1,228 @@
+"""LeRobot checkpoints as policies (goldenticket.policies.lerobot).
+
+The refusals run everywhere; the tests marked `lerobot` need LeRobot 0.4.4, installed in its own
+venv (README, "LeRobot"; .ci/run runs them there) and are skipped without it.
+"""
+
+import importlib.util
+import json
+import pickle
+import sys
+from functools import partial
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from goldenticket.cli import main
+from goldenticket.errors import UserError
+from goldenticket.noise import Constant, Gaussian
+from goldenticket.policies import BUNDLED_DIR, load_policy
+from goldenticket.policies.lerobot import is_checkpoint
+from goldenticket.rollout import Engine, Episode, rollout
+from goldenticket.tasks import get_task
+from goldenticket.tickets import Ticket
+
+ROOT = Path(__file__).parents[1]
+sys.path.insert(0, str(ROOT))  # examples.lerobot_reach, here and in worker processes
+from examples.lerobot_reach import LeRobotReach, make_env, make_vector_env  # noqa: E402
+
+HAS_LEROBOT = importlib.util.find_spec("lerobot") is not None
+SHIPPED = ROOT / "examples" / "lerobot_reach_policy"
+TICKET = ROOT / "examples" / "lerobot_reach_ticket.safetensors"
+REACH = "examples.lerobot_reach:make_env"
+
+
+def needs_lerobot(test):
+    """Marked `lerobot` (`pytest -m lerobot`), skipped where LeRobot is not installed."""
+    reason = "LeRobot is not installed (it has its own venv: README, \"LeRobot\")"
+    return pytest.mark.lerobot(pytest.mark.skipif(not HAS_LEROBOT, reason=reason)(test))
+
+
+def fake_checkpoint(folder: Path, **config) -> Path:
+    """A folder with LeRobot's file names, holding no real weights."""
+    folder.mkdir()
+    config = {"type": "diffusion", "noise_scheduler_type": "DDIM"} | config
+    (folder / "config.json").write_text(json.dumps(config))
+    for name in ("model.safetensors", "policy_preprocessor.json", "policy_postprocessor.json"):
+        (folder / name).write_text("{}")
+    return folder
+
+
+def refusal(capsys, policy: str) -> str:
+    """The one line `goldenticket evaluate` prints for `policy`, once it exited with code 2."""
+    assert main(["evaluate", "--policy", policy, "--task", REACH, "--seeds", "1000000:1000002"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1
+    return lines[0]
+
+
+@pytest.mark.parametrize(("config", "says"), [
+    ({"type": "act"}, "type 'act' takes no initial noise"),
+    ({"type": "vqbet"}, "type 'vqbet' takes no initial noise"),
+    ({"type": "tdmpc"}, "type 'tdmpc' takes no initial noise"),
+    ({"type": "pi0"}, "type 'pi0' is not supported"),
+    ({"noise_scheduler_type": "DDPM"}, 'set "noise_scheduler_type": "DDIM"'),
+])
+def test_policies_a_ticket_cannot_steer_are_refused(tmp_path, capsys, config, says):
+    assert says in refusal(capsys, str(fake_checkpoint(tmp_path / "policy", **config)))
+
+
+def test_a_folder_missing_lerobot_files_is_not_a_checkpoint(tmp_path, capsys):
+    folder = fake_checkpoint(tmp_path / "policy")
+    (folder / "model.safetensors").unlink()
+    assert "is not a LeRobot checkpoint: no model.safetensors" in refusal(capsys, str(folder))
+
+
+def test_lerobot_folders_are_told_from_goldenticket_ones(tmp_path):
+    assert is_checkpoint(fake_checkpoint(tmp_path / "policy"))
+    assert not is_checkpoint(BUNDLED_DIR / "metaworld/reach-v3/ddim")
+    assert not is_checkpoint(tmp_path / "nothing-here")
+
+
+@pytest.mark.skipif(HAS_LEROBOT, reason="checks the message shown where LeRobot is not installed")
+def test_without_lerobot_a_checkpoint_says_how_to_install_it(tmp_path, capsys):
+    assert "LeRobot is not installed here" in refusal(capsys, str(fake_checkpoint(tmp_path / "policy")))
+
+
+# --- with LeRobot ------------------------------------------------------------------------------
+
+class PixelReach(LeRobotReach):
+    """The reach env with a camera image too: a 64 x 64 picture of the hand's position."""
+
+    observation_space = gym.spaces.Dict({**LeRobotReach.observation_space.spaces,
+                                         "pixels": gym.spaces.Box(0, 255, (64, 64, 3), np.uint8)})
+
+    @staticmethod
+    def with_pixels(obs: dict) -> dict:
+        picture = np.zeros((64, 64, 3), np.uint8)
+        row, col = np.clip(((obs["agent_pos"][:2] + 0.5) * 64).astype(int), 0, 60)
+        picture[row : row + 4, col : col + 4] = 255
+        return obs | {"pixels": picture}
+
+    def reset(self, seed=None, options=None):
+        obs, info = super().reset(seed=seed)
+        return self.with_pixels(obs), info
+
+    def step(self, action):
+        obs, *rest = super().step(action)
+        return self.with_pixels(obs), *rest
+
+
+def make_pixel_env() -> gym.Env:
+    return gym.wrappers.TimeLimit(PixelReach(), 40)
+
+
+def lerobot_checkpoint(folder: Path, *, images: bool = False, **config) -> Path:
+    """An untrained LeRobot DiffusionPolicy folder, written by LeRobot's own save_pretrained."""
+    import torch
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+    from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+    from lerobot.policies.diffusion.processor_diffusion import make_diffusion_pre_post_processors
+
+    inputs = {"observation.state": PolicyFeature(FeatureType.STATE, (4,)),
+              "observation.environment_state": PolicyFeature(FeatureType.ENV, (6,))}
+    if images:
+        inputs["observation.image"] = PolicyFeature(FeatureType.VISUAL, (3, 64, 64))
+    settings = {"down_dims": (16, 32), "diffusion_step_embed_dim": 16, "noise_scheduler_type": "DDIM",
+                "num_inference_steps": 3, "horizon": 8, "n_action_steps": 4, "crop_shape": None,
+                "device": "cpu", "push_to_hub": False} | config
+    outputs = {"action": PolicyFeature(FeatureType.ACTION, (4,))}
+    cfg = DiffusionConfig(input_features=inputs, output_features=outputs, **settings)
+    torch.manual_seed(0)
+    DiffusionPolicy(cfg).save_pretrained(folder)
+    span = {"min": torch.tensor([-0.5, 0.3, 0.0, -1.0]), "max": torch.tensor([0.5, 0.9, 0.3, 1.0])}
+    stats = {"observation.state": span, "action": {"min": -torch.ones(4), "max": torch.ones(4)},
+             "observation.image": {"mean": torch.full((3, 1, 1), 0.1), "std": torch.full((3, 1, 1), 0.3)}}
+    for pipeline in make_diffusion_pre_post_processors(cfg, stats):
+        pipeline.save_pretrained(folder)
+    return folder
+
+
+def lerobot_loop(policy, ticket: np.ndarray, env_factory) -> tuple:
+    """What LeRobot's eval functions (lerobot-eval's `rollout`, `eval_policy`) take after the env:
+    16 envs as lerobot-eval makes them, the policy's model answering select_action(batch,
+    noise=ticket), no env processing, the policy's pre- and postprocessor."""
+    import torch
+    from lerobot.processor import PolicyProcessorPipeline
+
+    model, identity = policy.model, PolicyProcessorPipeline(steps=[])
+    model.select_action = partial(type(model).select_action, model,
+                                  noise=torch.from_numpy(ticket).expand(16, *ticket.shape))
+    env = gym.vector.SyncVectorEnv([env_factory] * 16, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    return env, model, identity, identity, policy.preprocessor, policy.postprocessor
+
+
+@pytest.mark.parametrize(("settings", "factory"), [
+    ({"n_obs_steps": 2}, make_env),
+    ({"n_obs_steps": 1, "horizon": 16, "n_action_steps": 6}, make_env),
+    ({"n_obs_steps": 2, "images": True}, make_pixel_env),
+], ids=["history-2", "no-history", "images"])
+@needs_lerobot
+def test_actions_are_those_of_lerobots_own_loop(tmp_path, settings, factory):
+    """Every executed action of every episode, bitwise, as select_action(batch, noise=ticket) gives
+    them in lerobot-eval's rollout: per-episode history, LeRobot's pre- and postprocessing."""
+    policy = load_policy(str(lerobot_checkpoint(tmp_path / "policy", **settings)))
+    ticket = np.random.default_rng(1).standard_normal(policy.noise_shape).astype(np.float32)
+    seeds = list(range(1_000_000, 1_000_016))
+    episodes = [Episode(Constant(ticket), s) for s in seeds]
+    ours = rollout(policy, get_task(factory), episodes, record_actions=True)
+    from lerobot.scripts.lerobot_eval import rollout as lerobot_rollout
+
+    theirs = lerobot_rollout(*lerobot_loop(policy, ticket, factory), seeds=seeds)["action"].numpy()
+    for episode, result in enumerate(ours):
+        np.testing.assert_array_equal(result.actions, theirs[episode, : result.length])
+
+
+@needs_lerobot
+def test_shipped_ticket_gives_lerobots_per_episode_successes():
+    """goldenticket's engine and LeRobot's eval loop, on the same held-out seeds with the shipped
+    ticket, succeed on the same episodes."""
+    policy = load_policy(str(SHIPPED))
+    ticket = Ticket.load(TICKET, expected_shape=policy.noise_shape).noise
+    seeds = list(range(1_005_000, 1_005_032))
+    with Engine(policy, get_task(REACH), loaded=policy) as engine:
+        ours = [r.success for r in engine.evaluate([Episode(Constant(ticket), s) for s in seeds])]
+    from lerobot.scripts.lerobot_eval import eval_policy
+
+    info = eval_policy(*lerobot_loop(policy, ticket, make_env), n_episodes=len(seeds), start_seed=seeds[0])
+    assert ours == [e["success"] for e in info["per_episode"]]
+    assert 0 < sum(ours) < len(seeds)
+
+
+@needs_lerobot
+def test_a_checkpoint_is_one_deterministic_policy_however_reached(tmp_path):
+    """The same folder by path or @N steps, pickled, alone or in a batch, in worker processes: the
+    same fingerprint and the same actions."""
+    folder = str(lerobot_checkpoint(tmp_path / "policy"))
+    policy, faster = load_policy(folder), load_policy(folder + "@2")
+    assert (policy.noise_shape, policy.n_exec) == ((8, 4), 4)
+    assert policy.fingerprint().endswith("steps3") and faster.fingerprint().endswith("steps2")
+    copy = pickle.loads(pickle.dumps(policy))
+    assert copy.fingerprint() == policy.fingerprint()
+    task = get_task(REACH, max_steps=30)
+    episodes = [Episode(Gaussian(), s) for s in range(1_000_000, 1_000_020)]
+    together = rollout(policy, task, episodes, record_actions=True)
+    for episode, result in zip(episodes[:3], together, strict=False):
+        np.testing.assert_array_equal(rollout(copy, task, [episode], record_actions=True)[0].actions,
+                                      result.actions)
+    with Engine(folder, task, workers=2, shard_size=7) as engine:
+        in_workers = engine.evaluate(episodes)
+    assert [(r.success, r.length) for r in in_workers] == [(r.success, r.length) for r in together]
+
+
+@needs_lerobot
+def test_observations_without_the_input_features_are_refused(tmp_path):
+    policy = load_policy(str(lerobot_checkpoint(tmp_path / "policy", images=True)))
+    with pytest.raises(UserError, match="input features are .*observation.image"):
+        rollout(policy, get_task(REACH), [Episode(Gaussian(), 1_000_000)])
+
+
+def test_the_example_env_is_what_lerobot_eval_runs():
+    """make_vector_env gives lerobot-eval's autoreset and the 150-step limit rollout reads."""
+    env = make_vector_env(2)
+    assert env.call("_max_episode_steps") == (150, 150)
+    obs, _ = env.reset(seed=[1_000_000, 1_000_001])
+    assert obs["agent_pos"].shape == (2, 4) and obs["environment_state"].shape == (2, 6)
