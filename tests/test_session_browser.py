@@ -91,8 +91,8 @@ def test_an_operator_sees_what_is_due_and_why_a_sequential_session_stopped(tmp_p
     server = _server(tmp_path, port)
     try:
         browser.get(f"http://127.0.0.1:{port}/")
-        _shows(browser, "search phase, round 1 of 2")
-        _shows(browser, "0 of at most 17 episodes scored")
+        _shows(browser, "search phase, round 1, 3 tickets left")
+        _shows(browser, "0 of at most 18 episodes scored")
         browser.find_element(By.ID, "scene").send_keys("table left")  # kept for every run
         while (status := Session(tmp_path).status())["due"] is not None:
             _shows(browser, f"Episode {status['due']}")

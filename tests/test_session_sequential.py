@@ -17,7 +17,7 @@ from test_session import _client, _free_port, _plan, _server
 
 from goldenticket import stats
 from goldenticket.errors import UserError
-from goldenticket.session import Client, Plan, ScoreConflict, Session
+from goldenticket.session import Client, Plan, ScoreConflict, Session, protocol
 
 POLICY = "metaworld/pick-place-v3/flow"
 
@@ -42,12 +42,22 @@ def test_the_mixture_e_value_is_its_integral_and_the_test_keeps_alpha_exactly():
         assert stats.mixture_log_e(w, n - w) == pytest.approx(np.log(integral), rel=1e-9)
     cap, alpha = 12, 0.05
     threshold = stats.sequential_threshold(cap, alpha)
+    paths = list(itertools.product([True, False], repeat=cap))  # every discordant path
     golden = sum(stats.sequential_sign_test(signs, [not s for s in signs], cap, alpha).decision == "golden"
-                 for signs in itertools.product([True, False], repeat=cap))  # every discordant path
+                 for signs in paths)
     assert golden / 2 ** cap == pytest.approx(stats.sequential_level(threshold, cap))
     assert golden / 2 ** cap < alpha
     below = max(v for row in stats._log_e_table(cap) for v in row if v < threshold)
     assert stats.sequential_level(below, cap) >= alpha  # the threshold is the smallest that keeps alpha
+    loose = 0.2  # a threshold in reach long enough for the futility stop to act
+    plain, stopped = ([stats.sequential_sign_test(p, [not s for s in p], cap, loose, futility) for p in paths]
+                      for futility in (None, protocol.FUTILITY))
+    wins = [sum(t.decision == "golden" for t in tests) / 2 ** cap for tests in (stopped, plain)]
+    assert wins[0] <= wins[1] < loose  # it only ever stops not golden
+    q1, beta = protocol.FUTILITY  # Ville: a ticket winning q1 of the discordant pairs is stopped futile
+    chance = sum(q1 ** sum(p) * (1 - q1) ** (cap - sum(p))  # with chance at most beta
+                 for p, t in zip(paths, stopped, strict=True) if t.reason == "futile")
+    assert 0 < chance <= beta
     concordant = stats.sequential_sign_test([True] * cap, [True] * cap, cap, alpha)  # no discordant pair
     assert (concordant.decision, concordant.reason) == ("not golden", "out of reach")
     assert concordant.pairs < cap
@@ -55,31 +65,71 @@ def test_the_mixture_e_value_is_its_integral_and_the_test_keeps_alpha_exactly():
         stats.sequential_sign_test([True] * 5, [False] * 5, 4)
 
 
-def test_the_race_halves_the_candidates_and_spends_the_search_budget():
-    assert Plan("p", "fp", (2, 2), 6, 25, 75, 0).rounds == [(6, 8, 3), (3, 16, 2), (2, 25, 1)]
-    assert Plan("p", "fp", (2, 2), 2, 25, 75, 0).rounds == [(2, 25, 1)]
-    assert Plan("p", "fp", (2, 2), 6, 25, 50, 0, "fixed").rounds == [(6, 25, 2)]
-    plan = Plan("p", "fp", (2, 2), 6, 25, 75, 0)
-    assert plan.starts == [0, 48, 96, 146, 296] and plan.episodes == 296 <= 6 * 25 + 3 * 50
+def test_the_futility_stop_ends_a_losing_ticket_early():
+    q1, beta = protocol.FUTILITY
+    losses = next(n for n in range(1, 20) if n * np.log(2 - 2 * q1) <= np.log(beta))
+    ticket, base = [False] * losses, [True] * losses
+    test = stats.sequential_sign_test(ticket, base, 70, 0.05, protocol.FUTILITY)
+    assert (test.decision, test.reason, test.pairs) == ("not golden", "futile", losses)
+    assert stats.sequential_sign_test(ticket[:-1], base[:-1], 70, 0.05, protocol.FUTILITY).decision is None
+    assert stats.sequential_sign_test(ticket, base, 70, 0.05).decision is None  # without it: not yet
+    with pytest.raises(ValueError, match="futility"):
+        stats.futile(1, 1, 0.4, beta)
+
+
+def test_the_race_drops_candidates_that_trail_the_leader_and_stops_at_one_or_the_budget():
+    names = list("abcdef")
+
+    def race(plan, wins_by_round):
+        """protocol.race over rounds of {candidate: successes, None: not scored yet}."""
+        search, each = [], plan.first_round
+        for wins in wins_by_round:
+            search += [(arm, won and i < won) for arm, won in wins.items() for i in range(each)]
+            each = protocol.ROUND
+        return protocol.race(plan, names, search)
+
+    plan, first = Plan("p", "fp", (2, 2), 6, 25, 70, 0), protocol.FIRST_ROUND
+    assert plan.first_round == first and plan.episodes == 6 * 25 + 2 * 70 <= 6 * 25 + 3 * 50
+    clear = race(plan, [dict(zip(names, [0, 0, first, 1, 0, 0], strict=True))])
+    assert (clear.ends, clear.alive, clear.next_round) == ([6 * first], ["c"], 0)  # one left: over
+    even = race(plan, [dict.fromkeys(names, first // 2)])
+    assert (even.alive, even.next_round) == (names, protocol.ROUND)  # nobody trails: all go on
+    close = race(plan, [dict(zip(names, [first, first - 2, 2, 2, 2, 2], strict=True))])
+    assert not protocol.trails(first, first - 2, first) and protocol.trails(first, 2, first)
+    assert close.alive == ["a", "b"] and close.next_round == protocol.ROUND
+    tied = race(Plan("p", "fp", (2, 2), 6, 12, 70, 0), [{"a": first, "b": first} | dict.fromkeys("cdef", 0)]
+                + [{"b": 2, "a": 2}] * 3)  # a and b tie: rounds of 2 x 2 until 6 x 12 is spent
+    assert tied.ends == [6 * first + 4 * k for k in range(4)] and tied.ends[-1] + 4 > 6 * 12
+    assert (tied.alive, tied.next_round) == (["a", "b"], 0)  # the finalist: the earlier of the tied
+    assert race(plan, [dict.fromkeys(names, 1)] + [dict.fromkeys(names, None)]).next_round == 0  # scoring
+    fixed = Plan("p", "fp", (2, 2), 6, 25, 50, 0, "fixed")
+    fixed = race(fixed, [dict(zip(names, [3, 9, 9, 1, 2, 0], strict=True))])
+    assert (fixed.ends, fixed.alive, fixed.next_round) == ([150], ["b", "c"], 0)
 
 
 def test_weak_tickets_are_dropped_and_the_finalist_runs_in_blind_pairs(tmp_path):
-    session = Session.new(tmp_path, _sequential())
-    best = session.scores()[0]["arm"]
-    stages = _play(session, lambda due, status: due.ticket_id == best or (due.ticket_id == "base"
-                                                                          and due.episode % 3 != 0))
+    session = Session.new(tmp_path, _sequential(tickets=3, episodes_per_ticket=20))
+    best, rival = session.scores()[0]["arm"], session.scores()[1]["arm"]
+    runs: dict[str, int] = {}
+
+    def success(due, status):  # the best always succeeds; the rival fails its every 5th; the rest mostly
+        runs[due.ticket_id] = runs.get(due.ticket_id, 0) + 1
+        n = runs[due.ticket_id]
+        return {best: True, rival: n % 5 != 0, "base": n % 3 == 0}.get(due.ticket_id, n % 4 == 0)
+
+    stages = _play(session, success)
     scores = session.scores()
-    runs = {arm: sum(r["phase"] == "search" and r["arm"] == arm for r in scores)
-            for arm in {r["arm"] for r in scores}}
-    rounds = session.plan.rounds
-    assert sorted(runs.values()) == sorted([rounds[0][1]] * 3 + [rounds[0][1] + rounds[1][1]]
-                                           + [sum(each for _, each, _ in rounds)] * 2 + [0])
-    assert runs[best] == max(runs.values())  # the best ticket runs in every round
+    search = [r for r in scores if r["phase"] == "search"]
+    ran = {arm: sum(r["arm"] == arm for r in search) for arm in {r["arm"] for r in search}}
+    weak = (set(ran) - {best, rival}).pop()
+    first, each = session.plan.first_round, protocol.ROUND
+    assert ran[weak] == first < ran[rival] <= ran[best] and (ran[best] - first) % each == 0
+    assert len(search) < session.plan.tickets * session.plan.episodes_per_ticket  # the race ended early
+    assert {"search phase, round 1, 3 tickets left", "search phase, round 2, 2 tickets left"} <= set(stages)
     confirm = [r for r in scores if r["phase"] == "confirm"]
     assert {r["arm"] for r in confirm} == {best, "base"}
     pairs = [tuple(r["arm"] for r in confirm[i:i + 2]) for i in range(0, len(confirm), 2)]
     assert all(set(p) == {best, "base"} for p in pairs) and len(set(pairs)) == 2  # both orders occur
-    assert "search phase, round 2 of 3" in stages
     assert "confirm phase, pair 2 of at most 20, run 2 of 2: the same scene as run 1" in stages
     assert not any(best in s or "base" in s for s in stages)
 
@@ -94,13 +144,15 @@ def test_a_clearly_better_ticket_stops_the_session_early(tmp_path):
     threshold = stats.sequential_threshold(20, 0.05)
     needed = next(k for k in range(1, 21) if stats.mixture_log_e(k, 0) >= threshold)
     assert stopping["reason"] == "decided early" and stopping["pairs"] == needed < 20
-    assert stopping["ticket_only"] == needed and stopping["episodes"] == session.plan.starts[-2] + 2 * needed
+    search = session.plan.tickets * session.plan.episodes_per_ticket  # no ticket trails: the whole budget
+    assert stopping["ticket_only"] == needed and stopping["episodes"] == search + 2 * needed
     assert status["due"] is None and status["scored"] == stopping["episodes"] < status["total"]
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["verdict"] == verdict and summary["plan"]["stopping"] == "sequential"
     assert summary["verdict"]["stopping"]["test"].startswith("sequential sign test")
-    each = [e for _, e, _ in session.plan.rounds]  # 1, 2 and 4 episodes per candidate per round
-    assert sorted(summary["search_episodes"].values()) == [each[0]] * 3 + [sum(each[:2])] + [sum(each)] * 2
+    assert set(summary["search_episodes"].values()) == {session.plan.episodes_per_ticket}
+    assert summary["race"] == {"first_round": 4, "round": protocol.ROUND, "drop_z": protocol.DROP_Z}
+    assert stopping["futility"] == dict(zip(("q1", "beta"), protocol.FUTILITY, strict=True))
     with pytest.raises(ScoreConflict, match="the session is complete"):
         session.score(stopping["episodes"], True)
     session.undo(status["last_scored"])  # the decision is undone with its last score
@@ -119,11 +171,12 @@ def test_equal_arms_reach_the_cap_or_lose_hope_and_are_not_golden(tmp_path):
 
 
 def test_scene_ids_on_both_runs_of_a_pair_make_the_test_paired(tmp_path):
-    session = Session.new(tmp_path, _sequential())
-    confirm = session.plan.starts[-2]
+    session, confirm = Session.new(tmp_path, _sequential()), None
     while (due := session.next()) is not None:
-        pair = (due.episode - confirm) // 2
-        session.score(due.episode, due.ticket_id != "base", scene=f"layout {pair}" if pair >= 0 else None)
+        if session.status()["phase"] == "confirm":
+            confirm = due.episode if confirm is None else confirm
+        scene = None if confirm is None else f"layout {(due.episode - confirm) // 2}"
+        session.score(due.episode, due.ticket_id != "base", scene=scene)
     assert session.verdict()["stopping"]["test"] == "sequential sign test, pairs matched by scene id"
 
 
@@ -133,14 +186,16 @@ def test_the_plan_is_a_function_of_the_seed_and_the_scores(tmp_path):
     def success(due, status):
         return outcomes.setdefault(due.episode, (due.episode * 7) % 5 < 2)
 
-    first, second = Session.new(tmp_path / "a", _sequential()), Session.new(tmp_path / "b", _sequential())
+    plan = _sequential(tickets=3, episodes_per_ticket=20)
+    first, second = Session.new(tmp_path / "a", plan), Session.new(tmp_path / "b", plan)
     _play(first, success)
-    end_of_round = first.plan.starts[1] - 1
-    for episode in range(first.plan.starts[1]):  # the second session: round 1, undo, rescore
+    assert sum(r["phase"] == "search" for r in first.scores()) > 3 * plan.first_round  # more than 1 round
+    end_of_round = 3 * plan.first_round - 1
+    for episode in range(end_of_round + 1):  # the second session: round 1, undo, rescore
         second.score(episode, outcomes[episode])
     planned = second.status()["planned"]
     second.undo(end_of_round)  # drops round 2, planned from the score undone
-    assert second.status()["planned"] == first.plan.starts[1] < planned
+    assert second.status()["planned"] == end_of_round + 1 < planned
     second.score(end_of_round, outcomes[end_of_round])
     second = Session(tmp_path / "b")  # another process goes on
     while (due := second.next()) is not None:
@@ -169,17 +224,22 @@ def test_session_new_takes_the_stopping_rule_and_alpha(tmp_path, capsys):
 
     assert main(["session", "new", "--policy", POLICY, "--out", str(tmp_path / "seq")]) == 0
     plan = Session(tmp_path / "seq").plan
-    assert (plan.stopping, plan.alpha, plan.confirm, plan.episodes) == ("sequential", 0.05, 75, 296)
+    assert (plan.stopping, plan.alpha, plan.confirm, plan.episodes) == ("sequential", 0.05, 70, 290)
     assert main(["session", "new", "--policy", POLICY, "--out", str(tmp_path / "fixed"),
                  "--stopping", "fixed", "--alpha", "0.1"]) == 0
     plan = Session(tmp_path / "fixed").plan
     assert (plan.stopping, plan.alpha, plan.confirm, plan.episodes) == ("fixed", 0.1, 50, 300)
-    assert "at most 296 episodes in all (sequential stopping)" in capsys.readouterr().out
+    assert "at most 290 episodes in all (sequential stopping)" in capsys.readouterr().out
     for flags in (["--alpha", "0"], ["--confirm", "3"]):
         assert main(["session", "new", "--policy", POLICY, "--out", str(tmp_path / "bad"), *flags]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if line]
     assert len(errors) == 2 and all(line.startswith("goldenticket: error: ") for line in errors)
     assert "--alpha" in errors[0] and "--confirm" in errors[1] and not (tmp_path / "bad").exists()
+    with pytest.raises(SystemExit):
+        main(["session", "new", "--help"])
+    text = " ".join(capsys.readouterr().out.split())  # every placeholder filled, the plan's defaults
+    assert "%(" not in text and "%%" not in text and text.count("{") == text.count("{sequential,fixed}")
+    assert f"(default {protocol.DEFAULT_CONFIRM['sequential']}, so never more episodes than fixed)" in text
 
 
 def test_the_http_api_says_what_is_due_and_why_the_session_stopped(tmp_path):

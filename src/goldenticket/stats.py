@@ -148,11 +148,19 @@ def sequential_threshold(cap: int, alpha: float) -> float:
     return float(values[low]) if low < len(values) else math.inf
 
 
+def futile(wins, losses, q1: float, beta: float):
+    """Whether `wins` ticket-only and `losses` base-only pairs make the likelihood ratio of q = 1/2
+    against q = q1 reach 1/beta (Wald's lower boundary); counts may be numpy arrays."""
+    if not (0.5 < q1 < 1 and 0 < beta < 1):
+        raise ValueError(f"futility needs 1/2 < q1 < 1 and 0 < beta < 1, got {q1}, {beta}")
+    return wins * np.log(2 * q1) + losses * np.log(2 - 2 * q1) <= np.log(beta)
+
+
 @dataclass(frozen=True)
 class Sequential:
     """A sequential sign test after `pairs` pairs: the discordant counts, the largest e-value so
     far, its threshold and exact p-value, and the decision ("golden", "not golden", or None to
-    go on) with its reason ("threshold reached", "out of reach", "cap reached")."""
+    go on) with its reason ("threshold reached", "futile", "out of reach", "cap reached")."""
 
     pairs: int
     ticket_only: int
@@ -164,8 +172,8 @@ class Sequential:
     reason: str | None
 
 
-def sequential_sign_test(ticket: Sequence[bool], base: Sequence[bool], cap: int,
-                         alpha: float = 0.05) -> Sequential:
+def sequential_sign_test(ticket: Sequence[bool], base: Sequence[bool], cap: int, alpha: float = 0.05,
+                         futility: tuple[float, float] | None = None) -> Sequential:
     """One-sided sequential test that the ticket succeeds more often than the base, decided
     after each pair (one episode per arm) until the first decision, with at most `cap` pairs.
 
@@ -175,6 +183,10 @@ def sequential_sign_test(ticket: Sequence[bool], base: Sequence[bool], cap: int,
     golden once it reaches the threshold whose chance of being reached within `cap` pairs under
     no difference is below alpha (sequential_threshold, exact), so the type-I error is at most
     alpha whenever the test stops; not golden once the threshold is out of reach within the cap.
+    futility (q1, beta): also not golden ("futile") once the likelihood ratio of q = 1/2 against
+    q = q1 reaches 1/beta (Wald's sequential probability ratio test, 1945): a ticket that wins a
+    discordant pair with probability q1 or more is stopped so with chance at most beta (Ville's
+    inequality). It only ever stops for "not golden", so it leaves the type-I error as it is.
     p_value: the exact chance under no difference of an e-value as large as the largest seen.
     """
     if len(ticket) != len(base):
@@ -189,6 +201,8 @@ def sequential_sign_test(ticket: Sequence[bool], base: Sequence[bool], cap: int,
         best = max(best, table[wins + losses][wins])
         if best >= threshold:
             decision, reason = "golden", "threshold reached"
+        elif futility and futile(wins, losses, *futility):
+            decision, reason = "not golden", "futile"
         elif table[wins + losses + cap - pairs][wins + cap - pairs] < threshold:
             decision, reason = "not golden", "cap reached" if pairs == cap else "out of reach"
         if decision:

@@ -4,10 +4,12 @@ Two protocols over N random candidate tickets, each episode's arm hidden from th
 - fixed (the paper's): N x K search episodes in a shuffled order; then the two candidates with
   the most search successes (ties: the earlier candidate) and the base policy, M episodes each,
   interleaved in a shuffled order; the verdict once every episode is scored.
-- sequential: a race (successive halving) spends the same N x K search episodes in rounds, each
-  keeping the better half of the candidates, in a shuffled order; then the one finalist and the
-  base run in pairs (one episode each, in an order drawn from the seed), at most M pairs, and
-  the session stops at the first pair after which the sequential sign test decides.
+- sequential: a race (successive elimination) in rounds, each in a shuffled order: every
+  candidate FIRST_ROUND episodes, then ROUND more per candidate still in, a candidate dropped
+  once it trails the leader by DROP_Z standard errors, until one is left or N x K episodes are
+  spent; then the finalist and the base run in pairs (one episode each, in an order drawn from
+  the seed), at most M pairs, and the session stops at the first pair after which the
+  sequential sign test decides (golden, futile, or out of reach).
 Every score is written the moment it is entered; only the due episode (the first unscored one)
 can be scored, and what is planned next is a function of the seed and the scores, so a restart
 resumes where it stopped. The files beside the store (the finalists' tickets, and once complete
@@ -40,7 +42,9 @@ BASE = "base"
 MAX_EPISODES = 100_000
 MAX_CAP = 1000  # pairs under sequential stopping: its test is calibrated exactly over the cap
 STOPPING = ("sequential", "fixed")
-DEFAULT_CONFIRM = {"fixed": 50, "sequential": 75}  # sequential: never more episodes than fixed
+DEFAULT_CONFIRM = {"fixed": 50, "sequential": 70}  # sequential: never more episodes than fixed
+FIRST_ROUND, ROUND, DROP_Z = 10, 2, 1.5  # the race (benchmarks/session_sequential.py chose them)
+FUTILITY = (0.7, 0.2)  # (q1, beta) of the confirm test's futility stop (stats.sequential_sign_test)
 _SCHEMA = """
 CREATE TABLE plan (id INTEGER PRIMARY KEY CHECK (id = 0), value TEXT NOT NULL);
 CREATE TABLE arms (arm TEXT PRIMARY KEY, noise BLOB);
@@ -95,36 +99,65 @@ class Plan:
                             f"(for --alpha {self.alpha}) and {MAX_CAP}, got {self.confirm}")
 
     @property
-    def rounds(self) -> list[tuple[int, int, int]]:
-        """The search rounds as (candidates, episodes each, candidates kept): fixed, one round of
-        N x K keeping 2; sequential, successive halving of the N x K episodes (Karnin, Koren and
-        Somekh 2013): ceil(log2 N) rounds with an equal share each, keeping the better half."""
-        if self.stopping == "fixed":
-            return [(self.tickets, self.episodes_per_ticket, 2)]
-        budget, count = self.tickets * self.episodes_per_ticket, math.ceil(math.log2(self.tickets))
-        rounds, alive = [], self.tickets
-        while alive > 1:
-            rounds.append((alive, max(1, budget // (alive * count)), -(-alive // 2)))
-            alive = rounds[-1][2]
-        return rounds
+    def first_round(self) -> int:
+        """Search episodes per candidate in the first round: K for fixed (the only round)."""
+        each = self.episodes_per_ticket
+        return each if self.stopping == "fixed" else min(FIRST_ROUND, each)
 
     @property
     def arms(self) -> int:
-        """Arms in the confirm phase: the finalists and the base."""
-        return self.rounds[-1][2] + 1
-
-    @property
-    def starts(self) -> list[int]:
-        """The first episode of each search round and of the confirm phase, then the end."""
-        starts = [0]
-        for candidates, each, _ in self.rounds:
-            starts.append(starts[-1] + candidates * each)
-        return [*starts, starts[-1] + self.arms * self.confirm]
+        """Arms in the confirm phase: the finalists (2 fixed, 1 sequential) and the base."""
+        return 3 if self.stopping == "fixed" else 2
 
     @property
     def episodes(self) -> int:
-        """Every episode the session may run: the search rounds, then M per confirm arm."""
-        return self.starts[-1]
+        """Every episode the session may run: at most N x K search episodes, then M per confirm arm."""
+        return self.tickets * self.episodes_per_ticket + self.arms * self.confirm
+
+
+@dataclass(frozen=True)
+class Race:
+    """The search replayed round by round from its planned episodes: the end of each round
+    planned, the candidates still in after the last fully scored one (most search successes
+    first; ties: the earlier candidate), and the episodes each runs in the next round (0: the
+    search is over, the first `plan.arms - 1` of `alive` are the finalists)."""
+
+    ends: list[int]
+    alive: list[str]
+    next_round: int
+
+
+def race(plan: Plan, candidates: list[str], search: list[tuple[str, bool | None]]) -> Race:
+    """Replay the search episodes `search` ((arm, success or None) in episode order) of a plan
+    whose candidates are `candidates`, in their order. Fixed: one round; the top 2 go on.
+    Sequential: successive elimination (Even-Dar, Mannor and Mansour, JMLR 7, 2006): after each
+    round, every candidate that trails() the leader is dropped; the next round comes while more
+    than one is left and it fits in N x K episodes. `next_round` is 0 too while a round is
+    being scored."""
+    rank, wins = {arm: i for i, arm in enumerate(candidates)}, dict.fromkeys(candidates, 0)
+    alive, start, each, runs, ends = list(candidates), 0, plan.first_round, 0, []
+    while start < len(search):
+        ends.append(start + len(alive) * each)
+        if any(success is None for _, success in search[start:ends[-1]]):
+            return Race(ends, alive, 0)
+        for arm, success in search[start:ends[-1]]:
+            wins[arm] += bool(success)
+        alive = sorted(alive, key=lambda a: (-wins[a], rank[a]))
+        if plan.stopping == "fixed":
+            return Race(ends, alive[:2], 0)
+        runs += each
+        alive = [a for a in alive if not trails(wins[alive[0]], wins[a], runs)]
+        start, each = ends[-1], ROUND
+    fits = start + len(alive) * ROUND <= plan.tickets * plan.episodes_per_ticket
+    return Race(ends, alive, ROUND if len(alive) > 1 and fits else 0)
+
+
+def trails(lead, wins, runs):
+    """Whether a candidate with `wins` search successes trails the leader's `lead`, both in `runs`
+    episodes, by DROP_Z standard errors of the difference (the pooled two-proportion z statistic,
+    with one success and one failure added); counts may be numpy arrays."""
+    p = (lead + wins + 1) / (2 * runs + 2)
+    return lead - wins >= DROP_Z * np.sqrt(2 * runs * p * (1 - p))
 
 
 @dataclass(frozen=True)
@@ -189,7 +222,7 @@ class Session:
         rng = np.random.default_rng([plan.seed, 0])
         candidates = rng.standard_normal((plan.tickets, *plan.noise_shape), dtype=np.float32)
         arms = {_ticket_id(noise, plan): noise for noise in candidates}
-        order = [arm for arm in arms for _ in range(plan.rounds[0][1])]
+        order = [arm for arm in arms for _ in range(plan.first_round)]
         rng.shuffle(order)
         con = _connect(path)
         with con:
@@ -240,10 +273,11 @@ class Session:
             if episode != last:
                 raise ScoreConflict(f"episode {episode} is not the last one scored; that is {last}",
                                     last_scored=last)
+            later = [end for end in self._race().ends if end > episode]  # rounds planned from its score
             con.execute("UPDATE episodes SET success = NULL, note = NULL, scene = NULL, scored_at = NULL, "
                         "entry = NULL WHERE episode = ?", (episode,))
-            con.execute("DELETE FROM episodes WHERE episode >= ?",
-                        (min(s for s in self.plan.starts if s > episode),))
+            if later:
+                con.execute("DELETE FROM episodes WHERE episode >= ?", (later[0],))
 
     def status(self) -> dict:
         """Scored episodes and the most the session may run (`total`), those planned so far, the
@@ -283,12 +317,12 @@ class Session:
 
     def _status(self) -> dict:
         scored, planned = self._one("SELECT COUNT(success), COUNT(*) FROM episodes")
-        due = self._due()
+        due, confirm = self._due(), self._confirm_start()
         status = {"scored": scored, "total": self.plan.episodes, "planned": planned,
-                  "phase": "confirm" if planned > self.plan.starts[-2] else "search", "due": due,
+                  "phase": "search" if confirm is None else "confirm", "due": due,
                   "last_scored": self._last_scored(), "stopping": self.plan.stopping,
                   "stage": self._stage(due)}
-        if due is None and planned == self.plan.episodes:
+        if due is None and confirm is not None:
             status["verdict"] = self._verdict()
         return status
 
@@ -296,10 +330,14 @@ class Session:
         """What the due episode is, in words for the operator (never its arm)."""
         if due is None:
             return "complete"
-        rounds, confirm = len(self.plan.rounds), self.plan.starts[-2]
-        if due < confirm:
-            round_ = sum(start <= due for start in self.plan.starts[1:-2]) + 1
-            return "search phase" + (f", round {round_} of {rounds}" if rounds > 1 else "")
+        confirm = self._confirm_start()
+        if confirm is None and self.plan.stopping == "fixed":
+            return "search phase"
+        if confirm is None:
+            search, ends = self._search(), self._race().ends
+            round_ = sum(end <= due for end in ends)
+            left = len({arm for arm, _ in search[ends[round_ - 1] if round_ else 0:ends[round_]]})
+            return f"search phase, round {round_ + 1}, {left} tickets left"
         if self.plan.stopping == "fixed":
             return "confirm phase"
         pair, run = divmod(due - confirm, 2)
@@ -350,12 +388,16 @@ class Session:
                            "golden": test.decision == "golden", "verdict": test.decision}}
         reason = "cap reached" if test.pairs == self.plan.confirm else "decided early"
         e, threshold = f"{test.e_value:.3g}", f"{test.threshold:.3g}"
+        (q1, beta), discordant = FUTILITY, test.ticket_only + test.base_only
         detail = {"threshold reached": f"the e-value reached {e} (threshold {threshold})",
+                  "futile": f"the base won {test.base_only} of {discordant} discordant pairs: no difference "
+                            f"is {1 / beta:g} or more times likelier than a ticket winning {q1:.0%} of them",
                   "out of reach": f"the e-value (at most {e} so far) cannot reach {threshold} within the cap",
                   "cap reached": f"the e-value stayed below {threshold} (at most {e})"}
         scored, stopped_at = self._one("SELECT COUNT(success), MAX(scored_at) FROM episodes")
         stopping = {"rule": "sequential", "test": name, "alpha": self.plan.alpha, "cap": self.plan.confirm,
-                    "threshold": test.threshold, "e_value": test.e_value, "pairs": test.pairs,
+                    "threshold": test.threshold, "e_value": test.e_value,
+                    "futility": {"q1": q1, "beta": beta}, "pairs": test.pairs,
                     "ticket_only": test.ticket_only, "base_only": test.base_only, "episodes": scored,
                     "stopped_at": stopped_at, "reason": reason,
                     "why": f"{reason} after {test.pairs} of at most {self.plan.confirm} pairs ({scored} "
@@ -364,60 +406,66 @@ class Session:
                 "note": f"p-value: the sequential sign test, one-sided, ticket better than base, tested "
                         f"after every pair of the confirm phase; 'golden' means its mixture e-value reached "
                         f"{threshold}, which under no difference happens within {self.plan.confirm} pairs "
-                        f"with chance below {self.plan.alpha:g} (p < {self.plan.alpha:g})"}
+                        f"with chance below {self.plan.alpha:g} (p < {self.plan.alpha:g}); not golden early "
+                        f"once out of reach, or futile (which stops a ticket that wins {q1:.0%} of the "
+                        f"discordant pairs with chance at most {beta:g})"}
 
     def _test(self) -> Sequential | None:
         """The sequential sign test on the confirm pairs scored so far; None for a fixed session."""
         if self.plan.stopping == "fixed":
             return None
         _, ticket, base, _ = self._confirm_pairs()
-        return sequential_sign_test(ticket, base, self.plan.confirm, self.plan.alpha)
+        return sequential_sign_test(ticket, base, self.plan.confirm, self.plan.alpha, FUTILITY)
 
     def _confirm_pairs(self) -> tuple[str | None, list[bool], list[bool], bool]:
         """The finalist, its and the base's outcomes over the scored confirm pairs, and whether
         each pair's two episodes name the same scene."""
-        rows = self._con.execute("SELECT arm, success, scene FROM episodes WHERE episode >= ? AND success "
-                                 "IS NOT NULL ORDER BY episode", (self.plan.starts[-2],)).fetchall()
+        rows = self._con.execute("SELECT arm, success, scene FROM episodes WHERE phase = 'confirm' "
+                                 "AND success IS NOT NULL ORDER BY episode").fetchall()
         pairs = [sorted(rows[i:i + 2], key=lambda r: r[0] == BASE) for i in range(0, len(rows) - 1, 2)]
         finalist = next(iter(self._finalists()), None)
         by_scene = all(a[2] is not None and a[2] == b[2] for a, b in pairs)
         return finalist, [bool(a[1]) for a, _ in pairs], [bool(b[1]) for _, b in pairs], by_scene
 
     def _plan_next_if_due(self) -> None:
-        if self._next_stage() is None:
+        if not self._round_due():
             return
         with self._transaction() as con:
-            stage = self._next_stage()
-            if stage is None:  # another process planned it meanwhile
+            if not self._round_due():  # another process planned it meanwhile
                 return
-            kept, rounds = self._survivors(stage), self.plan.rounds
-            if stage < len(rounds):  # a search round: its candidates' episodes in a shuffled order
-                arms = [arm for arm in kept for _ in range(rounds[stage][1])]
-                np.random.default_rng([self.plan.seed, 2, stage]).shuffle(arms)
+            planned, race_ = len(self._search()), self._race()
+            if race_.next_round:  # a search round: its candidates' episodes in a shuffled order
+                arms = [arm for arm in race_.alive for _ in range(race_.next_round)]
+                np.random.default_rng([self.plan.seed, 2, len(race_.ends)]).shuffle(arms)
             elif self.plan.stopping == "fixed":  # the confirm phase: every arm's episodes shuffled
-                arms = [arm for arm in (*kept, BASE) for _ in range(self.plan.confirm)]
+                arms = [arm for arm in (*race_.alive, BASE) for _ in range(self.plan.confirm)]
                 np.random.default_rng([self.plan.seed, 1]).shuffle(arms)
             else:  # pairs of the finalist and the base, each pair's order drawn from the seed
-                pairs = np.array([[kept[0], BASE]] * self.plan.confirm)
+                pairs = np.array([[race_.alive[0], BASE]] * self.plan.confirm)
                 arms = np.random.default_rng([self.plan.seed, 1]).permuted(pairs, axis=1).ravel().tolist()
-            phase = "search" if stage < len(rounds) else "confirm"
+            phase = "search" if race_.next_round else "confirm"
             con.executemany("INSERT INTO episodes (episode, phase, arm) VALUES (?, ?, ?)",
-                            [(self.plan.starts[stage] + i, phase, a) for i, a in enumerate(arms)])
+                            [(planned + i, phase, a) for i, a in enumerate(arms)])
 
-    def _next_stage(self) -> int | None:
-        """The search round or confirm phase (its index in plan.starts) to plan now: the one after
-        the last planned, once every planned episode is scored."""
-        scored, planned = self._one("SELECT COUNT(success), COUNT(*) FROM episodes")
-        starts = self.plan.starts[:-1]
-        return starts.index(planned) if scored == planned and planned in starts else None
+    def _round_due(self) -> bool:
+        """Whether every planned episode is scored and the confirm phase not planned yet."""
+        scored, planned, confirm = self._one("SELECT COUNT(success), COUNT(*), SUM(phase = 'confirm') "
+                                             "FROM episodes")
+        return scored == planned and not confirm
 
-    def _survivors(self, stage: int) -> list[str]:
-        """The candidates of search round `stage` - 1 that go on, best first (ties: the earlier
-        candidate)."""
-        ran = {a for (a,) in self._con.execute("SELECT DISTINCT arm FROM episodes WHERE episode >= ? AND "
-                                               "episode < ?", tuple(self.plan.starts[stage - 1:stage + 1]))}
-        wins = {arm: won for arm, (won, _) in self._search_record().items() if arm in ran}
-        return sorted(wins, key=lambda a: -wins[a])[:self.plan.rounds[stage - 1][2]]
+    def _race(self) -> Race:
+        candidates = [a for (a,) in self._con.execute("SELECT arm FROM arms WHERE arm != ? ORDER BY rowid",
+                                                      (BASE,))]
+        return race(self.plan, candidates, self._search())
+
+    def _search(self) -> list[tuple[str, bool | None]]:
+        """Every planned search episode's arm and outcome (None: not scored yet), in order."""
+        return [(arm, None if success is None else bool(success)) for arm, success in self._con.execute(
+            "SELECT arm, success FROM episodes WHERE phase = 'search' ORDER BY episode")]
+
+    def _confirm_start(self) -> int | None:
+        """The first confirm episode; None before the confirm phase is planned."""
+        return self._one("SELECT MIN(episode) FROM episodes WHERE phase = 'confirm'")[0]
 
     def _search_record(self) -> dict[str, tuple[int, int]]:
         """Search successes and scored episodes per candidate, in candidate order."""
@@ -450,8 +498,10 @@ class Session:
             summary.unlink(missing_ok=True)
             png.unlink(missing_ok=True)
             return
-        record = self._search_record()
-        text = json.dumps({"session": self.name, "plan": asdict(self.plan),
+        record, plan = self._search_record(), self.plan
+        race_ = {} if plan.stopping == "fixed" else {
+            "race": {"first_round": plan.first_round, "round": ROUND, "drop_z": DROP_Z}}
+        text = json.dumps({"session": self.name, "plan": asdict(plan), **race_,
                            "search_successes": {arm: won for arm, (won, _) in record.items()},
                            "search_episodes": {arm: n for arm, (_, n) in record.items()},
                            "tickets": {a: f"tickets/{a}.safetensors" for a in self._finalists()},
@@ -491,7 +541,7 @@ class Session:
     def _due(self) -> int | None:
         """The first unscored episode, unless the sequential test has decided."""
         due = self._one("SELECT MIN(episode) FROM episodes WHERE success IS NULL")[0]
-        if due is not None and due >= self.plan.starts[-2] and (test := self._test()) and test.decision:
+        if due is not None and self._confirm_start() is not None and (test := self._test()) and test.decision:
             return None
         return due
 
