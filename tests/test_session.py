@@ -6,6 +6,7 @@ import re
 import shutil
 import signal
 import socket
+import sqlite3
 import subprocess
 import sys
 import threading
@@ -464,3 +465,18 @@ def test_input_that_is_not_utf8_stops_the_terminal_scorer_in_one_line(tmp_path):
     errors = proc.stderr.decode().splitlines()
     assert proc.returncode == 2 and len(errors) == 1 and "not UTF-8" in errors[0]
     assert [r["success"] for r in Session(tmp_path).scores()[:2]] == [1, None]  # the score before it is saved
+
+
+def test_a_session_stored_before_entry_numbers_opens_and_undoes_its_last_score(tmp_path):
+    session = Session.new(tmp_path, _plan())
+    for _ in range(3):
+        session.score(session.next().episode, True)
+    last = session.status()["last_scored"]
+    with sqlite3.connect(tmp_path / "session.sqlite") as con:  # the table as sessions stored it before
+        con.executescript("""
+            CREATE TABLE old AS SELECT episode, phase, arm, success, note, scene, scored_at FROM episodes;
+            DROP TABLE episodes; ALTER TABLE old RENAME TO episodes;""")
+    reopened = Session(tmp_path)
+    assert reopened.status()["scored"] == 3 and reopened.status()["last_scored"] == last
+    reopened.undo(last)
+    assert reopened.next().episode == last

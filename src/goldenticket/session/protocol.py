@@ -207,6 +207,7 @@ class Session:
             fields = json.loads(self._one("SELECT value FROM plan")[0])
             fields = {"stopping": "fixed", "alpha": 0.05} | fields  # planned before sequential stopping
             self.plan = Plan(**{**fields, "noise_shape": tuple(fields["noise_shape"])})
+            _number_old_scores(self._con)
         except (sqlite3.DatabaseError, TypeError, ValueError, KeyError):
             raise UserError(f"{self.path}: not a goldenticket session, or damaged") from None
         self.name = self.path.parent.resolve().name
@@ -573,6 +574,20 @@ def _ticket_id(noise: np.ndarray, plan: Plan) -> str:
 def _identity(path: Path) -> tuple[int, int]:
     info = os.stat(path)
     return info.st_dev, info.st_ino
+
+
+def _number_old_scores(con: sqlite3.Connection) -> None:
+    """A session stored before scores had an entry number gets one: its scores numbered in the
+    order they were entered (by time, then episode), so undo takes back the last of them."""
+    if "entry" in {row[1] for row in con.execute("PRAGMA table_info(episodes)")}:
+        return
+    with con:
+        con.execute("ALTER TABLE episodes ADD COLUMN entry INTEGER")
+        con.execute("CREATE UNIQUE INDEX episodes_entry ON episodes (entry)")
+        scored = con.execute("SELECT episode FROM episodes WHERE success IS NOT NULL "
+                             "ORDER BY scored_at, episode").fetchall()
+        con.executemany("UPDATE episodes SET entry = ? WHERE episode = ?",
+                        [(n, episode) for n, (episode,) in enumerate(scored, 1)])
 
 
 def _connect(path: Path) -> sqlite3.Connection:
