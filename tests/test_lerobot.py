@@ -214,6 +214,22 @@ def test_a_checkpoint_is_one_deterministic_policy_however_reached(tmp_path):
 
 
 @needs_lerobot
+def test_a_checkpoint_is_searched_through_the_api_and_resumed(tmp_path):
+    """goldenticket.search(DIR, ...) writes the verdict and the run store; the same call resumes
+    from the store and gives the same summary."""
+    import goldenticket
+
+    folder = str(lerobot_checkpoint(tmp_path / "policy"))
+    options = {"method": "rs", "budget": 8, "search_seeds": 2, "validation_seeds": 0, "heldout": 16,
+               "top_k": 1, "max_steps": 20, "workers": 1}
+    first = goldenticket.search(folder, REACH, tmp_path / "run", **options)
+    assert first["policy"] == folder and first["base"]["n"] == 16
+    ticket = Ticket.load(Path(first["best"]["ticket_path"]), expected_shape=(8, 4))
+    assert ticket.metadata["policy_fingerprint"] == load_policy(folder).fingerprint()
+    assert goldenticket.search(folder, REACH, tmp_path / "run", **options) == first
+
+
+@needs_lerobot
 def test_observations_without_the_input_features_are_refused(tmp_path):
     policy = load_policy(str(lerobot_checkpoint(tmp_path / "policy", images=True)))
     with pytest.raises(UserError, match="input features are .*observation.image"):
