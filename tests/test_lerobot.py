@@ -242,3 +242,11 @@ def test_the_example_env_is_what_lerobot_eval_runs():
     assert env.call("_max_episode_steps") == (150, 150)
     obs, _ = env.reset(seed=[1_000_000, 1_000_001])
     assert obs["agent_pos"].shape == (2, 4) and obs["environment_state"].shape == (2, 6)
+
+
+@needs_lerobot
+def test_evaluate_json_is_json_alone(capsys):
+    """LeRobot prints where it loads weights from: none of it reaches stdout, where --json goes."""
+    assert main(["evaluate", "--policy", str(SHIPPED), "--task", REACH, "--seeds", "1005000:1005002",
+                 "--workers", "1", "--json"]) == 0
+    assert set(json.loads(capsys.readouterr().out)) == {"base", "zero"}

@@ -13,7 +13,9 @@ depend on the other rows. LeRobot is imported only when such a folder is loaded.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import json
 from pathlib import Path
 
@@ -78,7 +80,8 @@ class LeRobotPolicy:
                             "as README's \"LeRobot\" section says (pip install -e \".[lerobot]\")") from None
         cfg = PreTrainedConfig.from_pretrained(self.path)
         cfg.device, cfg.num_inference_steps = "cpu", steps or cfg.num_inference_steps
-        self.model = get_policy_class(cfg.type).from_pretrained(self.path, config=cfg).eval()
+        with contextlib.redirect_stdout(io.StringIO()):  # LeRobot prints where it loads from
+            self.model = get_policy_class(cfg.type).from_pretrained(self.path, config=cfg).eval()
         on_cpu = {"device_processor": {"device": "cpu"}}
         self.preprocessor, self.postprocessor = make_pre_post_processors(
             cfg, pretrained_path=str(self.path), preprocessor_overrides=on_cpu)
