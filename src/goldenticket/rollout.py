@@ -108,7 +108,6 @@ def _progress(env, success: bool, task: str) -> float:
     return min(1.0, max(0.0, float(call_users(progress, f"task {task!r}: progress()"))))
 
 
-
 def observed(recent: deque):
     """What act gets of one episode: its latest observation or, for a policy with n_obs_steps > 1, its
     last n_obs_steps stacked oldest first (the first observation repeated at the start)."""
