@@ -136,8 +136,9 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
                                 budget=cfg.budget, stop_after_perfect=cfg.stop_after_perfect,
                                 max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
-        tickets = _select(cfg, evaluator, [_ticket(cfg, names, result, c, search_seeds, expand)
-                                           for c in _top(result, cfg, len(optimizer.seeds))], validation)
+        top = _top(result, cfg, len(optimizer.seeds))
+        candidates = [_ticket(cfg, names, result, c, search_seeds, expand) for c in top]
+        tickets = _select(cfg, evaluator, candidates, validation)
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2), "held-out: top tickets"):
             judged = judge(evaluator, {"zero": zero} | {t.id: Constant(t.noise) for t in tickets},
                            heldout, base)
@@ -152,13 +153,12 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     title = f"{names.policy} on {names.task}"
     arms_png(arm_rows(summary["base"], summary["zero"], summary["tickets"]), out / "verdict.png", title,
              best=f"ticket {summary['best']['ticket_id']}")
-    index = {id(c): i for i, c in enumerate(result.candidates)}
-    top = {_ticket(cfg, names, result, c, search_seeds, expand).id: index[id(c)]
-           for c in _top(result, cfg, len(optimizer.seeds))}
+    order = {id(c): i for i, c in enumerate(result.candidates)}  # a ticket's place in the search
+    place = {ticket.id: order[id(c)] for ticket, c in zip(candidates, top, strict=True)}
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
                out / "search.png", f"{cfg.method} search: {title}",
-               validated=list(top.values()) if cfg.validation() else [],
-               judged=[top[t["ticket_id"]] for t in summary["tickets"]],
+               validated=list(place.values()) if validation else [],
+               judged=[place[t["ticket_id"]] for t in summary["tickets"]],
                base=(float(np.mean([r.ret for r in judged["base"].results])),
                      f"held-out seeds {span[0]}..{span[1]}"))
     return summary
