@@ -68,7 +68,8 @@ class GymTask:
                             f"got {type(env).__name__}")
         if type(getattr(env, "unwrapped", env)).__module__.startswith("metaworld"):
             raise UserError(f"task {self.name!r}: Meta-World's own envs ignore reset(seed=) "
-                            "(Metaworld issue #555); use the built-in task metaworld/<env-name>")
+                            "(their initial positions follow the env's history); use the built-in task "
+                            "metaworld/<env-name>")
         success = self.success
         if isinstance(success, str):
             success = resolve(success, "success predicate")
