@@ -5,9 +5,11 @@ Fast: our Meta-World env (`tasks/metaworld_fast.py`, the same episodes to the bi
 Engine: the bundled policy's episodes through `Engine` (policy calls, noise, resets included),
 with 1 ... `--workers` workers, on local processes and, if Ray is installed, on Ray actors of a
 local Ray instance; and the peak resident memory of a local worker process (a shard of 16
-episodes, so 16 envs). Prints each rate and its ratio to the raw rate, or with `--json` one JSON
-object {"raw": steps/s, "fast": steps/s, "engine": {workers: steps/s}, "ray": {workers: steps/s},
-"peak_rss_mb"}.
+episodes, so 16 envs). Profile: one policy call on a shard's 16 rows, in ms, split into matrix
+products, activations, other torch ops and the rest (Python, dispatch, conversions), beside the
+env time of the 16 x n_exec steps that call serves. Prints each rate and its ratio to the raw
+rate, or with `--json` one JSON object {"raw": steps/s, "fast": steps/s, "engine": {workers:
+steps/s}, "ray": {workers: steps/s}, "peak_rss_mb", "policy_call_ms": {part: ms}}.
 Writes benchmarks/results/engine_throughput.{json,png} (the PNG: steps/s against workers, with
 the ideal W x raw line).
 
@@ -27,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.noise import Gaussian
+from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine, Episode
 from goldenticket.tasks import get_task, seeds_in
 from goldenticket.tasks.metaworld import MetaWorldEnv
@@ -66,6 +69,31 @@ def steps_per_second(step, reset, steps: int = 5000) -> float:
     return steps / (time.perf_counter() - start)
 
 
+def policy_call_ms(calls: int = 100) -> dict[str, float]:
+    """One policy call on 16 observations (a shard) in ms: its total, and its parts from torch's
+    profiler by op kind; "rest" is everything the profiler does not see as a torch op."""
+    from torch.profiler import ProfilerActivity, profile
+
+    policy, env = load_policy(POLICY), MetaWorldEnv(TASK.split("/")[1])
+    obs = np.stack([env.reset(seed) for seed in range(16)])
+    noise = np.random.default_rng(0).standard_normal((16, *policy.noise_shape), dtype=np.float32)
+    policy.act(obs, noise)
+    start = time.perf_counter()
+    for _ in range(calls):
+        policy.act(obs, noise)
+    parts = {"total": (time.perf_counter() - start) / calls * 1e3}
+    kinds = {"matmul": ("aten::addmm", "aten::mm"), "activation": ("aten::erf", "aten::gelu")}
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(calls):
+            policy.act(obs, noise)
+    ops = {e.key: e.self_cpu_time_total / calls / 1e3 for e in prof.key_averages()}
+    for kind, names in kinds.items():
+        parts[kind] = sum(ops.pop(name, 0.0) for name in names)
+    parts["other torch ops"] = sum(ops.values())
+    parts["rest"] = max(parts["total"] - parts["matmul"] - parts["activation"] - parts["other torch ops"], 0)
+    return parts
+
+
 def engine_steps_per_second(episodes: int, workers: int, backend: str = "local") -> float:
     task = get_task(TASK)
     batch = [Episode(Gaussian(0), s) for s in seeds_in("search", episodes)]
@@ -85,6 +113,7 @@ def main() -> None:
     args = parser.parse_args()
     backends = ["local"] + (["ray"] if importlib.util.find_spec("ray") else [])
     rates = {"raw": raw_steps_per_second(), "fast": fast_steps_per_second()}
+    rates["policy_call_ms"] = policy_call_ms()
     for backend in backends:
         rates["engine" if backend == "local" else backend] = {
             w: engine_steps_per_second(args.episodes, w, backend) for w in range(1, args.workers + 1)}
@@ -102,8 +131,15 @@ def main() -> None:
     for backend in backends:
         for workers, rate in rates["engine" if backend == "local" else backend].items():
             print(f"{backend:5s} engine, {workers} worker(s), {args.episodes} episodes: {rate:8.0f} steps/s  "
-                  f"(ratio {rate / rates['raw']:.2f}, per worker {rate / (workers * rates['raw']):.2f})")
+                  f"(ratio {rate / rates['raw']:.2f}, per worker {rate / (workers * rates['raw']):.2f}; "
+                  f"per worker to fast {rate / (workers * rates['fast']):.2f})")
     print(f"peak memory of a local worker process: {rates['peak_rss_mb']:.0f} MB")
+    served = 16 * load_policy(POLICY).n_exec
+    print(f"one policy call on 16 rows: {rates['policy_call_ms']['total']:.2f} ms; the {served} env steps it "
+          f"serves take {served / rates['fast'] * 1e3:.2f} ms on the fast path")
+    for part, ms in rates["policy_call_ms"].items():
+        if part != "total":
+            print(f"  {part:16s} {ms:6.2f} ms")
 
 
 def plot(rates: dict, path: Path) -> None:

@@ -83,6 +83,46 @@ def ddim_alpha_bar(t: torch.Tensor) -> torch.Tensor:
     return torch.cos((t + 0.008) / 1.008 * math.pi / 2) ** 2
 
 
+class Float64Denoiser:
+    """The denoiser in float64 for a fixed list of times, arranged for speed.
+
+    The first layer sees [observation, noisy chunk, time embedding]: the observation's share is
+    computed once per call (`condition`), the time embedding's once per time here; each denoising
+    step then multiplies only the chunk.
+    """
+
+    def __init__(self, model: Denoiser, times: torch.Tensor):
+        net = copy.deepcopy(model.net).double()
+        linears = [m for m in net if isinstance(m, nn.Linear)]
+        first, width = linears[0], model.net[-1].out_features
+        n_obs = first.in_features - width - 32
+        self.w_obs = first.weight[:, :n_obs].contiguous().T  # transposed views, as nn.Linear uses them
+        self.w_chunk = first.weight[:, n_obs : n_obs + width].contiguous().T
+        embedded = _time_embedding(times) @ first.weight[:, n_obs + width :].T
+        self.time_bias = [row + first.bias for row in embedded]
+        self.layers = [(m.weight.detach().T, m.bias.detach()) for m in linears[1:]]
+
+    def condition(self, obs_n: torch.Tensor) -> torch.Tensor:
+        """The observation's share of the first layer, for every step of one call."""
+        return obs_n @ self.w_obs
+
+    def __call__(self, condition: torch.Tensor, x: torch.Tensor, step: int) -> torch.Tensor:
+        """The network's output at the step-th time, for chunks x [B, H, A]."""
+        h = torch.addmm(condition + self.time_bias[step], x.flatten(1), self.w_chunk)
+        for weight, bias in self.layers:
+            h = torch.addmm(bias, _gelu(h), weight)
+        return h.view_as(x)
+
+
+def _gelu(h: torch.Tensor) -> torch.Tensor:
+    """Exact GELU, x * Phi(x), in place."""
+    phi = torch.erf(h * SQRT_HALF).add_(1)
+    return h.mul_(0.5).mul_(phi)
+
+
+SQRT_HALF = math.sqrt(0.5)
+
+
 class MLPPolicy:
     """A frozen denoising policy; `act` is deterministic given (obs, noise), on any x86-64 CPU.
 
@@ -99,7 +139,9 @@ class MLPPolicy:
             raise UserError(f"DDIM steps must be in 1..{cfg.train_timesteps}, got {cfg.steps}")
         self.cfg = cfg
         self.model = (model or Denoiser(cfg)).eval()
-        self._net = copy.deepcopy(self.model).double()
+        self._scale = copy.deepcopy(self.model).double()  # observation and action (de)normalisation
+        self._times = self._flow_times() if cfg.kind == "flow" else self._ddim_times()
+        self._net = Float64Denoiser(self.model, self._times)
 
     name = property(lambda self: self.cfg.name)
     n_exec = property(lambda self: self.cfg.n_exec)
@@ -119,8 +161,8 @@ class MLPPolicy:
         """Same actions on every CPU: float64 inference in fixed blocks, rounded to a grid
         (`policies/numerics.py`)."""
         denoise = self._flow if self.cfg.kind == "flow" else self._ddim
-        x = in_blocks(denoise, self._net.normalise_obs(self._inputs(obs)), noise)
-        return on_grid(self._net.denormalise_actions(x)[:, : self.cfg.n_exec])
+        x = in_blocks(denoise, self._scale.normalise_obs(self._inputs(obs)), noise)
+        return on_grid(self._scale.denormalise_actions(x)[:, : self.cfg.n_exec])
 
     def _inputs(self, obs: np.ndarray) -> torch.Tensor:
         """float64 observations, with the task's one-hot for a multi-task policy."""
@@ -134,22 +176,30 @@ class MLPPolicy:
         one_hot[:, self.cfg.tasks.index(self.task)] = 1.0
         return torch.cat([obs, one_hot], dim=1)
 
+    def _flow_times(self) -> torch.Tensor:
+        """Euler steps from t=1 (noise) to t=0 (action): the time each step starts at."""
+        return torch.linspace(1.0, 0.0, self.cfg.steps + 1, dtype=torch.float64)[:-1]
+
     def _flow(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        ts = torch.linspace(1.0, 0.0, self.cfg.steps + 1, dtype=torch.float64)
-        for t, t_next in zip(ts[:-1], ts[1:], strict=True):
-            x = x + (t_next - t) * self._net(obs_n, x, t.expand(len(x)))
+        condition = self._net.condition(obs_n)
+        dts = self._times.diff(append=self._times.new_zeros(1))  # each step's t_next - t
+        for step, dt in enumerate(dts):
+            x = x + dt * self._net(condition, x, step)
         return x
 
-    def _ddim(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    def _ddim_times(self) -> torch.Tensor:
         """Deterministic DDIM on "leading" training timesteps (steps-1)*T/steps, ..., T/steps, 0,
         ending on the clean sample. The terminal timestep is never used: its alpha_bar is ~0,
         which would make x0 = (x - eps) / sqrt(alpha_bar) rounding error."""
         T = self.cfg.train_timesteps
         steps = torch.arange(self.cfg.steps - 1, -1, -1, dtype=torch.float64)
-        ts = steps * (T // self.cfg.steps) / (T - 1)
-        alphas = [ddim_alpha_bar(t) for t in ts] + [torch.tensor(1.0, dtype=torch.float64)]
-        for t, a, a_next in zip(ts, alphas[:-1], alphas[1:], strict=True):
-            eps = self._net(obs_n, x, t.expand(len(x)))
+        return steps * (T // self.cfg.steps) / (T - 1)
+
+    def _ddim(self, obs_n: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        condition = self._net.condition(obs_n)
+        alphas = [ddim_alpha_bar(t) for t in self._times] + [torch.tensor(1.0, dtype=torch.float64)]
+        for step, (a, a_next) in enumerate(zip(alphas[:-1], alphas[1:], strict=True)):
+            eps = self._net(condition, x, step)
             x0 = ((x - (1 - a).sqrt() * eps) / a.sqrt()).clamp(-1.5, 1.5)
             x = a_next.sqrt() * x0 + (1 - a_next).sqrt() * eps
         return x
