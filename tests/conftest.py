@@ -4,6 +4,16 @@ import torch
 
 from goldenticket.policies import MLPPolicy, PolicyConfig
 
+SLOW_TOO = ("browser", "ray", "lerobot")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items) -> None:
+    """Browser, Ray and LeRobot tests are slow too: `-m "not slow"` is the fast tier."""
+    for item in items:
+        if any(item.get_closest_marker(name) for name in SLOW_TOO):
+            item.add_marker(pytest.mark.slow)
+
 
 @pytest.fixture(scope="session")
 def tiny_policies(tmp_path_factory) -> dict[str, MLPPolicy]:

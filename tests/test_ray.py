@@ -14,6 +14,7 @@ from goldenticket.rollout import Engine, Episode
 from goldenticket.tasks import get_task, seeds_in
 
 ray = pytest.importorskip("ray")
+pytestmark = [pytest.mark.ray, pytest.mark.xdist_group("ray")]
 HERE = Path(__file__).parent
 
 

@@ -21,6 +21,8 @@ from goldenticket.tasks import get_task, seeds_in
 ray = pytest.importorskip("ray")
 from ray.cluster_utils import Cluster  # noqa: E402
 
+pytestmark = [pytest.mark.ray, pytest.mark.xdist_group("ray")]
+
 POLICY, TASK = "metaworld/reach-v3/flow", "metaworld/reach-v3"
 NODES = 3
 

@@ -10,6 +10,8 @@ from test_session import _free_port, _plan, _server
 
 from goldenticket.session import Session
 
+pytestmark = pytest.mark.browser
+
 
 @pytest.fixture
 def browser():
