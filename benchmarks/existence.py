@@ -23,17 +23,15 @@ import numpy as np
 from build_zoo import MT10
 from results_files import RESULTS, write_results
 
-from goldenticket.evaluation import Evaluator, judge
-from goldenticket.noise import Constant, Gaussian
+from goldenticket.config import EvaluateConfig, SearchConfig
 from goldenticket.policies import BUNDLED_DIR, bundled_tickets
 from goldenticket.policies.registry import split_steps
 from goldenticket.report import rate_text
-from goldenticket.rollout import Engine
 from goldenticket.stats import sign_test, wilson_interval
 from goldenticket.store import RunStore
-from goldenticket.tasks import get_task, seeds_in
-from goldenticket.tickets import Ticket, zero_ticket
-from goldenticket.workflow import SearchConfig, find_golden_tickets
+from goldenticket.tasks import seeds_in
+from goldenticket.tickets import Ticket
+from goldenticket.workflow import evaluate_tickets, find_golden_tickets
 
 HERE = Path(__file__).parent
 POLICIES = ("flow", "ddim@8", "ddim@2")
@@ -52,24 +50,28 @@ def run_pair(task: str, policy: str, runs: Path, workers: int) -> dict:
     out = runs / policy.removeprefix("metaworld/").replace("/", "_")
     summary = find_golden_tickets(SearchConfig(policy, task, workers=workers, **SETTINGS), out)
     best = summary["best"]
-    best["fresh"] = fresh_check(Ticket.load(best["ticket_path"]), policy, task, out, workers)
+    best["fresh"] = fresh_check(Path(best["ticket_path"]), policy, task, out, workers)
     return summary
 
 
-def fresh_check(ticket: Ticket, policy: str, task: str, out: Path, workers: int) -> dict:
-    """Base, zero ticket and `ticket` on the next FRESH held-out seeds: the choice of the best
-    among the top tickets never saw them."""
+def fresh_check(path: Path, policy: str, task: str, out: Path, workers: int) -> dict:
+    """Base, zero ticket and the ticket at `path` on the next FRESH held-out seeds: the choice of
+    the best among the top tickets never saw them."""
     seeds = seeds_in("heldout", SETTINGS["heldout"] + FRESH)[SETTINGS["heldout"]:]
-    with Engine(policy, get_task(task), workers=workers) as engine, \
-            RunStore(out / "fresh.sqlite") as store:
-        zero = Constant(zero_ticket(ticket.noise.shape).noise)
-        judged = judge(Evaluator(engine, store), {"zero": zero, ticket.id: Constant(ticket.noise)}, seeds,
-                       Gaussian(SETTINGS["seed"]))
-    recorded, rate = ticket.metadata["heldout"], judged[ticket.id].rate.success_rate
-    return judged[ticket.id].to_dict() | {
-        "base": judged["base"].rate.to_dict(), "zero": judged["zero"].rate.to_dict(),
+    cfg = EvaluateConfig(policy, task, (str(path),), seeds, SETTINGS["seed"], workers=workers)
+    with RunStore(out / "fresh.sqlite") as store:
+        rows = evaluate_tickets(cfg, [path], store)
+    ticket = Ticket.load(path)
+    recorded, rate = ticket.metadata["heldout"], rows[ticket.id]["success_rate"]
+    return rows[ticket.id] | {
+        "base": _rate(rows["base"]), "zero": _rate(rows["zero"]),
         "seeds": [seeds[0], seeds[-1]], "inside_recorded_interval":
             recorded["ci_low"] <= rate <= recorded["ci_high"]}
+
+
+def _rate(row: dict) -> dict:
+    """An arm's success rate with its interval, without its tests."""
+    return {k: row[k] for k in ("success_rate", "ci_low", "ci_high", "n")}
 
 
 def table_row(s: dict) -> dict:

@@ -23,10 +23,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from build_zoo import MT10
 from results_files import RESULTS, write_results
 
+from goldenticket.config import SearchConfig
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
-from goldenticket.multitask import find_multitask_tickets, transfer
+from goldenticket.multitask import transfer
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
 from goldenticket.policies import load_policy
@@ -35,11 +37,9 @@ from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task
 from goldenticket.tickets import Ticket, zero_ticket
-from goldenticket.workflow import SearchConfig, progress_bar
+from goldenticket.workflow import find_golden_tickets, progress_bar
 
 HERE = Path(__file__).parent
-MT10 = ("reach-v3", "push-v3", "pick-place-v3", "door-open-v3", "drawer-open-v3", "drawer-close-v3",
-        "button-press-topdown-v3", "peg-insert-side-v3", "window-open-v3", "window-close-v3")
 TASKS = tuple(f"metaworld/{t}" for t in MT10)
 METHOD, BUDGET = "cem-racing", 500  # search method and episodes per task (as recorded; not the defaults)
 FRESH = list(range(1_000_100, 1_000_300))
@@ -141,8 +141,8 @@ def main() -> None:
     start = time.perf_counter()
     study = transfer(SearchConfig(args.policy, TASKS, METHOD, BUDGET, heldout=100, workers=args.workers),
                      runs / "transfer")
-    mt = find_multitask_tickets(SearchConfig(args.policy, TASKS, METHOD, BUDGET * len(TASKS), search_seeds=5,
-                                             heldout=100, top_k=3, workers=args.workers), runs / "multitask")
+    mt = find_golden_tickets(SearchConfig(args.policy, TASKS, METHOD, BUDGET * len(TASKS), search_seeds=5,
+                                          heldout=100, top_k=3, workers=args.workers), runs / "multitask")
     searches = runs / "transfer" / "search"
     own = {task: Ticket.load(searches / task.replace("/", "_") / "tickets" / f"{tid}.safetensors")
            for tid, tasks in study["tickets"].items() for task in tasks}

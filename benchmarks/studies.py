@@ -4,7 +4,7 @@
 
 - Pareto: random search over 100 tickets x 10 search seeds, objectives success and speed; the
   front re-judged on 100 held-out seeds beside base and zero (`search --objective success
-  --objective speed`).
+  --front-objective speed`).
 - Mixture: the Pareto run's 3 best tickets by search success, the best of them alone, a mixture of
   the 3 (`evaluate --mixture`) and base, on 200 other held-out seeds: success and diversity.
 - Sub-space: CEM with racing over the full ticket, one tiled action vector, and the gripper
@@ -23,8 +23,9 @@ from pathlib import Path
 
 from results_files import write_results
 
+from goldenticket.config import EvaluateConfig, SearchConfig
 from goldenticket.report import rate_text
-from goldenticket.workflow import SearchConfig, evaluate_tickets, find_golden_tickets
+from goldenticket.workflow import evaluate_tickets, find_golden_tickets
 
 HERE = Path(__file__).parent
 TASKS = ("pick-place-v3", "reach-v3", "drawer-open-v3")
@@ -43,8 +44,9 @@ def pareto(task: str, runs: Path, workers: int) -> dict:
 
 def mixture(task: str, pareto_summary: dict, workers: int) -> dict:
     paths = [Path(t["ticket_path"]) for t in pareto_summary["tickets"]]
-    rows = evaluate_tickets(f"metaworld/{task}/flow", f"metaworld/{task}", paths, list(MIXTURE_SEEDS),
-                            workers=workers, mixture=True)
+    cfg = EvaluateConfig(f"metaworld/{task}/flow", f"metaworld/{task}", tuple(map(str, paths)), MIXTURE_SEEDS,
+                         workers=workers, mixture=True)
+    rows = evaluate_tickets(cfg, paths)
     best = max((label for label in rows if label not in ("base", "zero", "mixture")),
                key=lambda label: rows[label]["success_rate"])
     return {"base": rows["base"], "best ticket": rows[best] | {"ticket_id": best}, "mixture": rows["mixture"],

@@ -12,9 +12,10 @@ import pytest
 
 from goldenticket import plots
 from goldenticket.cli import main
+from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
-from goldenticket.workflow import SearchConfig, find_golden_tickets
+from goldenticket.workflow import find_golden_tickets
 
 HERE = Path(__file__).parent
 BYO = ["--policy", "byo_example:make_policy", "--task", "byo_example:make_env", "--max-steps", "10"]

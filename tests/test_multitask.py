@@ -8,7 +8,8 @@ import torch
 from goldenticket.cli import main
 from goldenticket.errors import UserError
 from goldenticket.evaluation import Judged, judged_arms
-from goldenticket.multitask import greedy_cover, verdict
+from goldenticket.evaluation import multitask_verdict as verdict
+from goldenticket.multitask import greedy_cover
 from goldenticket.policies import MLPPolicy, PolicyConfig
 from goldenticket.rollout import EpisodeResult
 from goldenticket.store import RunStore
@@ -133,12 +134,28 @@ def test_transfer_writes_the_matrix_heatmap_and_cover(mt_policy, tmp_path, capsy
     assert "needs --budget" in capsys.readouterr().err
 
 
+def test_several_tasks_validate_on_every_task_when_asked(mt_policy, tmp_path):
+    out = tmp_path / "validated"
+    assert main(["search", "--policy", mt_policy, *_tasks_args(), *SMALL, "--top-k", "1",
+                 "--validation-seeds", "3", "--out", str(out)]) == 0
+    with RunStore(out / "run.sqlite") as store:
+        rows = store.episodes(seed_set="validation")
+    for task in TASKS:
+        assert {(r.ticket_id, r.seed) for r in rows if r.task == task} == {
+            (t, s) for t in {r.ticket_id for r in rows} for s in range(3_000_000, 3_000_003)}
+    best = json.loads((out / "summary.json").read_text())["best"]
+    scores = {t: np.mean([np.mean([r.ret for r in rows if r.task == task and r.ticket_id == t])
+                          for task in TASKS]) for t in {r.ticket_id for r in rows}}
+    assert best == max(scores, key=scores.get)
+    assert Ticket.load(out / "tickets" / f"{best}.safetensors").metadata["validation_score"] == scores[best]
+
+
 @pytest.mark.parametrize("args, message", [
     (["transfer", "--task", TASKS[0]], "at least two --task"),
     (["search", "--task", TASKS[0], "--no-regression"], "--no-regression needs several --task"),
     (["search", *_tasks_args([*TASKS, "metaworld/push-v3"])], "not trained for task 'metaworld/push-v3'"),
     (["search", *_tasks_args([TASKS[0], TASKS[0]])], "given twice"),
-    (["search", *_tasks_args(), "--validation-seeds", "3"], "single-task"),
+    (["search", *_tasks_args(), "--success", "byo_example:reached"], "single-task"),
 ])
 def test_bad_multitask_input_exits_2_with_one_line(mt_policy, tmp_path, capsys, args, message):
     assert main([*args, "--policy", mt_policy, *SMALL, "--out", str(tmp_path / "o")]) == 2

@@ -231,7 +231,7 @@ def test_ticket_found_for_another_policy_or_task_does_not_fit():
     ticket = Ticket(noise(0), {"policy_fingerprint": "aa@8", "task": "metaworld/reach-v3", "policy": "p"})
     ticket.check_fits("aa@8", "metaworld/reach-v3", "t")
     for fingerprint, task in (("bb@8", "metaworld/reach-v3"), ("aa@8", "metaworld/push-v3")):
-        with pytest.raises(UserError, match="--allow-transfer"):
+        with pytest.raises(UserError, match="allow_transfer runs it anyway"):
             ticket.check_fits(fingerprint, task, "t")
     Ticket(noise(0)).check_fits("bb@8", "metaworld/push-v3", "t")  # made by hand: no provenance
 

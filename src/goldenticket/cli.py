@@ -13,17 +13,21 @@ import traceback
 from pathlib import Path
 
 from goldenticket import __version__
+from goldenticket.config import (
+    TASK_HELP,
+    EngineOptions,
+    EvaluateConfig,
+    OptionError,
+    SearchConfig,
+    cli_fields,
+    flag,
+    make,
+    read_toml,
+    seed_range,
+)
 from goldenticket.errors import UserError
-from goldenticket.ticket_search.optimizers import OPTIMIZERS
 
 DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
-POLICY_HELP = "bundled policy name (see `goldenticket policies`) or a folder written by `train` " \
-              "(append @N to run N denoising steps), or package.module:factory returning a NoisePolicy"
-TASK_HELP = "task name, e.g. metaworld/pick-place-v3, or package.module:factory returning a gymnasium.Env"
-WORKERS_HELP = "worker processes (results do not depend on it)"
-MAX_STEPS_HELP = "episode step limit (default: the task's, 150 for Meta-World)"
-SUCCESS_HELP = "Gymnasium tasks: package.module:function(obs, info) -> bool deciding success " \
-               "(default: info['success'] or info['is_success'])"
 RESUME = dict.fromkeys(("demo", "search", "transfer"),
                        " (finished episodes are kept in --out: rerun the same command to resume)")
 
@@ -48,12 +52,9 @@ def _seed(text: str) -> int:
 
 def _seed_range(text: str) -> range:
     try:
-        a, b = (int(x) for x in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected A:B (integers), got {text!r}") from None
-    if not 0 <= a < b:
-        raise argparse.ArgumentTypeError(f"seed range {text!r} must satisfy 0 <= A < B")
-    return range(a, b)
+        return seed_range(text)
+    except UserError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("seeds: ")) from None
 
 
 class _HelpFormatter(argparse.HelpFormatter):
@@ -75,112 +76,78 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
-def _run_args(p: argparse.ArgumentParser) -> None:
+def _config_flags(p: argparse.ArgumentParser, cls, skip: tuple[str, ...] = (),
+                  config_file: bool = True) -> None:
+    """A flag per field of the config `cls` (`search_seeds` -> `--search-seeds`), with the field's
+    help and default; values not given stay unset, so a --config file can supply them."""
+    if config_file:
+        p.add_argument("--config", type=Path, default=None,
+                       help="a TOML file of options (keys are the options' names with _, e.g. search_seeds); "
+                            "flags override it. Every search writes the one it ran with to --out/config.toml")
+    for f in cli_fields(cls, skip):
+        cli = dict(f.metadata["cli"])
+        name, required = cli.pop("flag", flag(f.name)), cli.pop("required", False)
+        kwargs = {"dest": f.name, "default": argparse.SUPPRESS, "help": _help(f, required)}
+        if cli.pop("seed_range", False):
+            kwargs["type"] = _seed_range
+        if cli.get("action") is None:
+            kwargs |= {"action": _Once, "type": kwargs.get("type", _parse_type(f.type))}
+        p.add_argument(name, **kwargs | cli)
+
+
+class _Once(argparse.Action):
+    """A flag that takes one value: given twice, an error, not the last one silently."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if hasattr(namespace, self.dest):
+            parser.error(f"{option_string} given twice; give it once")
+        setattr(namespace, self.dest, values)
+
+
+def _help(f, required: bool) -> str:
+    unsaid = required or f.default in (None, False, ()) or "default" in f.metadata["help"]
+    return f.metadata["help"] + ("" if unsaid else f" (default: {f.default})")
+
+
+def _parse_type(annotation: str):
+    """The command-line type of a field annotated `annotation` (a string: postponed annotations)."""
+    return int if "int" in annotation.split(" | ") else float if annotation == "float" else str
+
+
+def _out_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True,
                    help="output folder: run.sqlite (every episode; rerun to resume), summary.json, "
-                        "tickets/, verdict.png, search.png")
-    p.add_argument("--seed", type=_seed, default=0, help="seed of every random draw")
-    _engine_args(p)
+                        "tickets/, verdict.png, search.png, config.toml")
 
 
-def _engine_args(p: argparse.ArgumentParser) -> None:
-    """Where episodes run; results do not depend on it."""
-    p.add_argument("--workers", type=int, default=2, help=WORKERS_HELP)
-    p.add_argument("--backend", choices=["local", "ray"], default="local",
-                   help="where episodes run: local processes, or Ray actors (results do not depend on it)")
-    p.add_argument("--address", default=None,
-                   help="Ray cluster address, e.g. ray://head:10001 (default: start a local Ray instance)")
-
-
-def _max_nonfinite_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--max-nonfinite", type=float, default=0.1,
-                   help="an episode whose policy call returns NaN or infinite actions ends as a failure; "
-                        "stop when more than this fraction of an arm's held-out episodes end so")
-
-
-def _search_options(p: argparse.ArgumentParser, per_task_budget: bool = False) -> None:
-    p.add_argument("--method", default="cma-es", choices=list(OPTIMIZERS),
-                   help="random search, CEM, zeroth-order search, CEM raced by halving "
-                        "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES")
-    p.add_argument("--budget", type=int, default=None,
-                   help="search episodes per task (needed unless --ticket)" if per_task_budget
-                   else "search episodes to spend (default: 2000)")
-    p.add_argument("--search-seeds", type=int, default=20, help="initial states to search on (per task)")
-    p.add_argument("--heldout", type=int, default=200,
-                   help="held-out initial states (per task) to judge base, zero ticket and tickets on")
+def _options(args, cls) -> dict:
+    """The config's values: the --config file's, then the flags given."""
+    values = read_toml(args.config) if getattr(args, "config", None) else {}
+    return values | {f.name: getattr(args, f.name) for f in cli_fields(cls) if hasattr(args, f.name)}
 
 
 def _transfer_parser(sub) -> None:
     tr = sub.add_parser("transfer", help="one ticket per task of a multi-task policy, each judged on every "
                                          "task: the transfer matrix and the smallest set that covers them")
-    tr.add_argument("--policy", required=True, help=POLICY_HELP)
-    tr.add_argument("--task", required=True, action="append", help="task name; repeat (at least two)")
     tr.add_argument("--ticket", action="append", default=[],
                     help="take these tickets (files or bundled ids) instead of searching one per task")
-    _search_options(tr, per_task_budget=True)
-    tr.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
-    _run_args(tr)
+    _config_flags(tr, SearchConfig, skip=TRANSFER_SKIPS)
+    _out_arg(tr)
+
+
+TRANSFER_SKIPS = ("top_k", "objective", "front_objective", "stop_after_perfect", "max_tickets", "success",
+                  "subspace", "no_regression", "max_nonfinite")
 
 
 def _search_parser(sub) -> None:
     search = sub.add_parser("search", help="search golden tickets for a policy on a task")
-    search.add_argument("--policy", required=True, help=POLICY_HELP)
-    search.add_argument("--task", required=True, action="append",
-                        help=TASK_HELP + "; repeat for one ticket over several tasks of a multi-task "
-                                         "policy (task-averaged success, judged per task)")
-    _search_options(search)
-    search.add_argument("--no-regression", action="store_true",
-                        help="several --task: never pick a ticket significantly worse than the base on "
-                             "a task")
-    search.add_argument("--top-k", type=int, default=3, help="best search tickets judged on held-out states")
-    search.add_argument("--validation-seeds", type=int, default=None,
-                        help="run the 3 x top-k best search tickets on this many validation states and "
-                             "judge the top-k of those on held-out states (default: 100 for one task; "
-                             "0: judge the search's top-k)")
-    search.add_argument("--max-tickets", type=int, default=None,
-                        help="stop after this many distinct tickets (default: no cap)")
-    search.add_argument("--stop-after-perfect", type=int, default=3,
-                        help="stop once this many tickets succeed on every search seed (0: never)")
-    search.add_argument("--objective", action="append", default=None,
-                        choices=["success", "success-progress", "discounted-success", "length", "speed"],
-                        help="episode return the search maximises (default success); give a second one "
-                             "to also find the Pareto front between them (front.json, front.png); "
-                             "speed: short successful episodes; success-progress: success, ties broken by "
-                             "how far failed episodes got (Meta-World's shaped reward at their end)")
-    search.add_argument("--subspace", default="full",
-                        help="what the search varies: full (every entry), tiled (one action-sized vector "
-                             "repeated over the horizon), channels:I,J (those action channels; the others 0)")
-    search.add_argument("--max-steps", type=int, default=None, help=MAX_STEPS_HELP)
-    search.add_argument("--success", default=None, help=SUCCESS_HELP)
-    _max_nonfinite_arg(search)
-    _run_args(search)
+    _config_flags(search, SearchConfig)
+    _out_arg(search)
 
 
 def _evaluate_parser(sub) -> None:
     ev = sub.add_parser("evaluate", help="judge tickets against the base policy on held-out seeds")
-    ev.add_argument("--policy", required=True, help=POLICY_HELP)
-    ev.add_argument("--task", default=None,
-                    help=TASK_HELP + " (default: the task the tickets were found on)")
-    ev.add_argument("--ticket", action="append", default=[],
-                    help="ticket file or bundled ticket id; repeat for several; without it, only "
-                         "the base and the zero ticket run")
-    ev.add_argument("--seeds", type=_seed_range, required=True,
-                    help="held-out seed range A:B (seeds 1000000:2000000 name held-out states)")
-    ev.add_argument("--seed", type=_seed, default=0, help="seed of the base policy's Gaussian noise")
-    ev.add_argument("--max-steps", type=int, default=None,
-                    help="episode step limit (default: the tickets' own, else the task's)")
-    ev.add_argument("--success", default=None,
-                    help=SUCCESS_HELP.replace("(default: ", "(default: the tickets' own, else "))
-    _engine_args(ev)
-    _max_nonfinite_arg(ev)
-    ev.add_argument("--allow-transfer", action="store_true",
-                    help="run tickets found for another policy or task, or under another --max-steps or "
-                         "--success (transfer studies)")
-    ev.add_argument("--mixture", action="store_true",
-                    help="add an arm that draws one of the tickets at every policy call, and report "
-                         "each arm's diversity (spread of executed actions from one initial state)")
-    ev.add_argument("--epsilon", type=float, default=0.0,
-                    help="with --mixture: fresh Gaussian noise instead of a ticket with this probability")
+    _config_flags(ev, EvaluateConfig)
     ev.add_argument("--plot", type=Path, default=None,
                     help="write a PNG of success with intervals per arm to this file (default: none)")
     ev.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
@@ -216,7 +183,9 @@ def _parser() -> argparse.ArgumentParser:
                              "env or success predicate is otherwise one line naming its file and line)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     demo = sub.add_parser("demo", help=f"search and judge a golden ticket for the bundled {DEMO_POLICY}")
-    _run_args(demo)
+    _config_flags(demo, EngineOptions, skip=("max_nonfinite",), config_file=False)
+    demo.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    _out_arg(demo)
     _search_parser(sub)
     _transfer_parser(sub)
     _evaluate_parser(sub)
@@ -291,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         if args.verbose:
             traceback.print_exception(exc)
-        return _fail(str(exc))
+        return _fail(exc.as_flags() if isinstance(exc, OptionError) else str(exc))
     except BrokenPipeError:  # `goldenticket tickets list | head`: the reader has gone; say nothing
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
@@ -320,62 +289,25 @@ def _fail(message: str) -> int:
 
 
 def _demo(args) -> int:
-    from goldenticket.workflow import SearchConfig
-
-    return _run_search(SearchConfig(DEMO_POLICY, DEMO_TASK, seed=args.seed, workers=args.workers,
-                                    backend=args.backend, address=args.address),
-                       args.out)
+    options = _options(args, EngineOptions) | {"seed": args.seed}
+    return _run_search(make(SearchConfig, {"policy": DEMO_POLICY, "task": DEMO_TASK} | options), args.out)
 
 
 def _search(args) -> int:
-    from goldenticket.workflow import SearchConfig
-
-    objectives = args.objective or ["success"]
-    if len(objectives) > 2:
-        raise UserError(f"--objective given {len(objectives)} times; a Pareto front takes two")
-    budget = SearchConfig.budget if args.budget is None else args.budget
-    cfg = SearchConfig(args.policy, _tasks(args.task), args.method, budget, args.seed,
-                       args.search_seeds, args.heldout, args.top_k, objectives[0],
-                       args.stop_after_perfect or None, args.max_tickets, args.workers, args.max_steps,
-                       args.success, args.backend, args.address, args.subspace,
-                       objectives[1] if len(objectives) == 2 else None, args.validation_seeds,
-                       args.no_regression, max_nonfinite=args.max_nonfinite)
-    if isinstance(cfg.task, tuple):
-        return _run_multitask_search(cfg, args.out)
-    return _run_search(cfg, args.out)
-
-
-def _tasks(names: list[str]) -> str | tuple[str, ...]:
-    """One --task: its name; several: the tuple of names (a multi-task run)."""
-    return names[0] if len(names) == 1 else tuple(names)
-
-
-def _run_multitask_search(cfg, out: Path) -> int:
-    from goldenticket.multitask import find_multitask_tickets
-    from goldenticket.report import multitask_text
-
-    start = time.perf_counter()
-    summary = find_multitask_tickets(cfg, out)
-    print(multitask_text(summary))
-    print(f"Tickets saved in {out / 'tickets'}. Wrote {out / 'summary.json'} and verdict.png in "
-          f"{time.perf_counter() - start:.0f} s.")
-    return 0
+    return _run_search(make(SearchConfig, _options(args, SearchConfig)), args.out)
 
 
 def _transfer(args) -> int:
     from goldenticket.multitask import transfer
     from goldenticket.report import transfer_text
-    from goldenticket.workflow import SearchConfig
 
-    tasks = _tasks(args.task)
-    if not isinstance(tasks, tuple):
-        raise UserError("transfer needs at least two --task")
-    if args.budget is None and not args.ticket:
+    options = _options(args, SearchConfig)
+    if "budget" not in options and not args.ticket:
         raise UserError("transfer needs --budget (search episodes per task) or --ticket")
+    cfg = make(SearchConfig, options)
+    if len(cfg.tasks) < 2:
+        raise UserError("transfer needs at least two --task")
     start = time.perf_counter()
-    cfg = SearchConfig(args.policy, tasks, args.method, args.budget, args.seed, args.search_seeds,
-                       args.heldout, workers=args.workers, max_steps=args.max_steps, backend=args.backend,
-                       address=args.address)
     print(transfer_text(transfer(cfg, args.out, args.ticket)))
     print(f"Wrote {args.out / 'transfer.json'}, transfer.csv and transfer.png in "
           f"{time.perf_counter() - start:.0f} s.")
@@ -383,11 +315,16 @@ def _transfer(args) -> int:
 
 
 def _run_search(cfg, out: Path) -> int:
-    from goldenticket.report import verdict_text
+    from goldenticket.report import multitask_text, verdict_text
     from goldenticket.workflow import arm_rows, find_golden_tickets
 
     start = time.perf_counter()
     s = find_golden_tickets(cfg, out)
+    if len(cfg.tasks) > 1:
+        print(multitask_text(s))
+        print(f"Tickets saved in {out / 'tickets'}. Wrote {out / 'summary.json'}, verdict.png and search.png "
+              f"in {time.perf_counter() - start:.0f} s.")
+        return 0
     print(verdict_text(arm_rows(s["base"], s["zero"], s["tickets"]), s["best"], s["p_value_note"]))
     if "front" in s:
         print(f"Pareto front ({cfg.objective} vs {cfg.front_objective}): {len(s['front'])} tickets "
@@ -407,31 +344,30 @@ def _evaluate(args) -> int:
     from goldenticket.tickets import Ticket
     from goldenticket.workflow import arm_rows, evaluate_tickets, found_under
 
-    paths = [find_ticket(ref) for ref in args.ticket]
+    cfg = make(EvaluateConfig, _options(args, EvaluateConfig))
+    paths = [find_ticket(ref) for ref in cfg.tickets]
     if args.plot is not None:
         check_target(args.plot)
         if not args.plot.parent.is_dir() or not os.access(args.plot.parent, os.W_OK):
             raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
-    rows = evaluate_tickets(args.policy, args.task, paths, list(args.seeds), args.seed, args.workers,
-                            args.allow_transfer, args.max_steps, args.success, args.backend, args.address,
-                            args.mixture, args.epsilon, args.max_nonfinite)
+    rows = evaluate_tickets(cfg, paths)
     tickets = [r | {"ticket_id": label} for label, r in rows.items()
                if label not in ("base", "zero", "mixture")]
     arms = arm_rows(rows["base"], rows["zero"], tickets)
-    if args.mixture:
-        epsilon = f", eps {args.epsilon:g}" if args.epsilon else ""
+    if cfg.mixture:
+        epsilon = f", eps {cfg.epsilon:g}" if cfg.epsilon else ""
         arms[f"mixture of {len(tickets)}{epsilon}"] = rows["mixture"]
     best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],
                key=lambda r: (r["success_rate"], -r["p_value"]))
     if args.plot is not None:
-        task = args.task or found_under([Ticket.load(p) for p in paths], {"task": None})["task"]
-        arms_png(arms, args.plot, f"{args.policy} on {task}, seeds {args.seeds.start}:{args.seeds.stop}",
+        task = cfg.task or found_under([Ticket.load(p) for p in paths], {"task": None})["task"]
+        arms_png(arms, args.plot, f"{cfg.policy} on {task}, seeds {cfg.seeds.start}:{cfg.seeds.stop}",
                  best=f"ticket {best['ticket_id']}")
     if args.json:
         print(json.dumps(rows, indent=2))
     else:
         print(verdict_text(arms, best, p_value_note(len(arms) - 2)))
-        if args.mixture:
+        if cfg.mixture:
             print("diversity (RMS spread of executed actions across 5 noise streams from each of the first "
                   "10 seeds): " + ", ".join(f"{label} {r['diversity']:.3f}" for label, r in arms.items()))
         if args.plot is not None:

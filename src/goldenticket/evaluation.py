@@ -6,6 +6,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
+from goldenticket.config import MAX_NONFINITE, OptionError, check_max_nonfinite
 from goldenticket.errors import UserError
 from goldenticket.noise import Gaussian, NoiseSource
 from goldenticket.rollout import NONFINITE, Engine, Episode, EpisodeResult
@@ -14,14 +15,7 @@ from goldenticket.store import EpisodeRow, RunStore
 from goldenticket.tasks.base import SEED_SETS, seed_set_of
 
 ALPHA = 0.05
-MAX_NONFINITE = 0.1  # default: the fraction of an arm's held-out episodes that may end in a NaN action
 Job = tuple[str, NoiseSource, Sequence[int]]  # (label, noise source, seeds)
-
-
-def check_max_nonfinite(fraction: float) -> None:
-    """UserError unless `fraction` (a max_nonfinite) is in [0, 1]."""
-    if not 0 <= fraction <= 1:
-        raise UserError(f"--max-nonfinite must be a fraction in [0, 1], got {fraction}")
 
 
 class Evaluator:
@@ -98,10 +92,10 @@ class Evaluator:
             finished = [known[label, s] for s in seeds if (label, s) in known]
             ended = [r for r in finished if r.cause == NONFINITE]
             if len(ended) > self.max_nonfinite * len(seeds):
-                raise UserError(f"policy {self.engine.label!r} returned NaN or infinite actions in "
-                                f"{len(ended)} of the {len(seeds)} held-out episodes of {label}, more than "
-                                f"--max-nonfinite {self.max_nonfinite:g} of them (the first on seed "
-                                f"{ended[0].seed}, at step {ended[0].length})")
+                raise OptionError(f"policy {self.engine.label!r} returned NaN or infinite actions in "
+                                  f"{len(ended)} of the {len(seeds)} held-out episodes of {label}, more than "
+                                  f"max_nonfinite {self.max_nonfinite:g} of them (the first on seed "
+                                  f"{ended[0].seed}, at step {ended[0].length})", "max_nonfinite")
 
 
 @dataclass
@@ -175,6 +169,24 @@ def regressions(per_task: dict[str, dict[str, Judged]], label: str) -> list[str]
     test, p < ALPHA, not adjusted: a stricter guard)."""
     return [task for task, judged in per_task.items()
             if paired_exact_test(judged["base"].successes, judged[label].successes) < ALPHA]
+
+
+def multitask_verdict(per_task: dict[str, dict[str, Judged]], ticket_ids: list[str],
+                      no_regression: bool) -> dict:
+    """Per task and on average: base, zero and each ticket with p-values (Holm-adjusted over the
+    tickets), the tasks each ticket significantly regresses on, and the best ticket: the highest
+    average success, among tickets that regress nowhere if `no_regression` (None if none is left)."""
+    average = pooled(per_task)
+    for judged in [*per_task.values(), average]:
+        adjust_for_multiplicity(judged, ticket_ids)
+    regressing = {t: regressions(per_task, t) for t in ticket_ids}
+    allowed = [t for t in ticket_ids if not (no_regression and regressing[t])]
+    ranked = sorted(allowed, key=lambda t: (-average[t].rate.success_rate, average[t].p_value))
+    return {"tasks": {name: {label: j.to_dict() for label, j in judged.items()}
+                      for name, judged in per_task.items()},
+            "average": {label: j.to_dict() for label, j in average.items()},
+            "tickets": ticket_ids, "regressions": regressing, "no_regression": no_regression,
+            "best": ranked[0] if ranked else None}
 
 
 def adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) -> None:

@@ -1,5 +1,6 @@
-"""Tickets across tasks: one ticket searched for a multi-task policy's task-averaged success, and
-the transfer matrix (every task's ticket on every task) with its greedy cover.
+"""Tickets across tasks: the transfer matrix (every task's ticket on every task) with its greedy
+cover. (One ticket for a multi-task policy's task-averaged success is the job itself, on several
+tasks: `workflow.find_golden_tickets`.)
 
 Every task uses the same search and held-out seed numbers; the seed sets are disjoint, so no
 task's held-out states were searched on, whichever task a ticket came from.
@@ -7,130 +8,29 @@ task's held-out states were searched on, whichever task a ticket came from.
 
 from __future__ import annotations
 
-import functools
 import json
 from dataclasses import replace
 from pathlib import Path
 
 from goldenticket.errors import UserError
-from goldenticket.evaluation import (
-    ALPHA,
-    Evaluator,
-    Judged,
-    adjust_for_multiplicity,
-    judge,
-    p_value_note,
-    pooled,
-    regressions,
-)
+from goldenticket.evaluation import ALPHA, Evaluator, Judged, judge
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.plots import tasks_png, transfer_png
-from goldenticket.policies import find_ticket, for_task, load_policy
+from goldenticket.plots import transfer_png
+from goldenticket.policies import find_ticket, load_policy
 from goldenticket.rollout import Engine
 from goldenticket.stats import holm_adjust
-from goldenticket.tasks import get_task, seeds_in
-from goldenticket.ticket_search import run_search
-from goldenticket.ticket_search.subspace import Subspace
+from goldenticket.tasks import seeds_in
 from goldenticket.tickets import Ticket, zero_ticket
 from goldenticket.workflow import (
     Names,
     SearchConfig,
-    _open_store,
-    _ticket,
-    _top,
+    checked_tasks,
     find_golden_tickets,
+    open_store,
     progress_bar,
-    query_evaluator,
+    shared,
 )
-
-
-def _tasks(policy, cfg_task, max_steps: int | None) -> list:
-    """The named tasks, each one the policy can act on and whose reset(seed) fixes the initial
-    state (UserError now, not mid-run)."""
-    tasks = [get_task(name, max_steps) for name in cfg_task]
-    if len({t.name for t in tasks}) < len(tasks):
-        raise UserError("a --task is given twice")
-    for task in tasks:
-        for_task(policy, task.name)
-        task.check()
-    return tasks
-
-
-def _names(cfg: SearchConfig, policy, tasks: list) -> Names:
-    """The run's names; its tickets record the tasks' step limit when they share one."""
-    limits = {t.max_steps for t in tasks}
-    return Names.of(cfg.policy, policy, " + ".join(t.name for t in tasks),
-                    limits.pop() if len(limits) == 1 else None)
-
-
-def find_multitask_tickets(cfg: SearchConfig, out: Path) -> dict:
-    """One search over all of `cfg.task`'s tasks for the task-averaged objective, then base, zero
-    and the top tickets judged per task and on average. Search episodes go to the tasks in turn:
-    seed key k runs task k mod T on search seed k div T, so every prefix the optimizer uses (a
-    racing tier, say) spreads evenly over the tasks."""
-    cfg.check()
-    policy = load_policy(cfg.policy)
-    tasks = _tasks(policy, cfg.task, cfg.max_steps)
-    names = [t.name for t in tasks]
-    heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
-    keys = list(range(len(tasks) * len(search_seeds)))
-    optimizer = cfg.optimizer(policy.noise_shape, keys)
-    run_names = _names(cfg, policy, tasks)
-    expand = functools.partial(Subspace.parse(cfg.subspace, policy.noise_shape).expand,
-                               noise_shape=policy.noise_shape)
-    base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
-    with Engine(cfg.policy, tasks, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
-                address=cfg.address, loaded=policy) as engine, \
-            _open_store(out, cfg, run_names) as store:
-        evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
-        with progress_bar(evaluator, 2 * cfg.heldout * len(tasks), "held-out: base and zero ticket"):
-            for name in names:
-                evaluator.run([("base", base, heldout), ("zero", zero, heldout)], name)
-        def where(key: int) -> tuple[str, int]:
-            return names[key % len(names)], search_seeds[key // len(names)]
-
-        with progress_bar(evaluator, cfg.budget, f"search ({cfg.method}, {len(tasks)} tasks)") as bar:
-            result = run_search(optimizer, query_evaluator(evaluator, run_names.fingerprint, expand, where),
-                                budget=cfg.budget, stop_after_perfect=cfg.stop_after_perfect,
-                                max_tickets=cfg.max_tickets)
-            bar.total = result.episodes_used
-        tickets = [_ticket(cfg, run_names, result, c, search_seeds, expand)
-                   for c in _top(result, cfg, len(keys))]
-        for ticket in tickets:
-            ticket.metadata["tasks"] = names
-        sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
-        with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2) * len(tasks), "held-out: top tickets"):
-            per_task = {name: judge(evaluator, sources, heldout, base, name) for name in names}
-    summary = verdict(per_task, [t.id for t in tickets], cfg.no_regression)
-    for ticket in tickets:
-        per_task_rows = {n: summary["tasks"][n][ticket.id] for n in names}
-        ticket.metadata["heldout"] = summary["average"][ticket.id] | {"seeds": [heldout[0], heldout[-1]],
-                                                                      "per_task": per_task_rows}
-        ticket.save(out / "tickets" / f"{ticket.id}.safetensors")
-    summary |= {"policy": run_names.policy, "method": cfg.method, "seed": cfg.seed,
-                "search_episodes": result.episodes_used, "stopped_because": result.stopped_because,
-                "heldout_seeds": [heldout[0], heldout[-1]], "p_value_note": p_value_note(len(tickets))}
-    write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    tasks_png(summary, out / "verdict.png", f"{run_names.policy}: one ticket for {len(tasks)} tasks")
-    return summary
-
-
-def verdict(per_task: dict[str, dict[str, Judged]], ticket_ids: list[str], no_regression: bool) -> dict:
-    """Per task and on average: base, zero and each ticket with p-values (Holm-adjusted over the
-    tickets), the tasks each ticket significantly regresses on, and the best ticket: the highest
-    average success, among tickets that regress nowhere if `no_regression` (None if none is left)."""
-    average = pooled(per_task)
-    for judged in [*per_task.values(), average]:
-        adjust_for_multiplicity(judged, ticket_ids)
-    regressing = {t: regressions(per_task, t) for t in ticket_ids}
-    allowed = [t for t in ticket_ids if not (no_regression and regressing[t])]
-    ranked = sorted(allowed, key=lambda t: (-average[t].rate.success_rate, average[t].p_value))
-    return {"tasks": {name: {label: j.to_dict() for label, j in judged.items()}
-                      for name, judged in per_task.items()},
-            "average": {label: j.to_dict() for label, j in average.items()},
-            "tickets": ticket_ids, "regressions": regressing, "no_regression": no_regression,
-            "best": ranked[0] if ranked else None}
 
 
 def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None) -> dict:
@@ -140,9 +40,10 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     episode is kept in `out/run.sqlite`, so a rerun resumes."""
     cfg.check()
     policy = load_policy(cfg.policy)
-    tasks = _tasks(policy, cfg.task, cfg.max_steps)
+    tasks = checked_tasks(policy, cfg)
     heldout = seeds_in("heldout", cfg.heldout)
-    names = _names(cfg, policy, tasks)
+    names = Names.of(cfg.policy, policy, " + ".join(t.name for t in tasks),
+                     shared(t.max_steps for t in tasks))
     if ticket_refs:
         tickets = [Ticket.load(find_ticket(ref), expected_shape=policy.noise_shape) for ref in ticket_refs]
         for ref, ticket in zip(ticket_refs, tickets, strict=True):
@@ -159,7 +60,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
     with Engine(cfg.policy, tasks, workers=cfg.workers, backend=cfg.backend, address=cfg.address,
                 loaded=policy) as engine, \
-            _open_store(out, cfg, names) as store:
+            open_store(out, cfg, names) as store:
         evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
         with progress_bar(evaluator, cfg.heldout * len(sources) * len(tasks) + cfg.heldout * len(tasks),
                           "transfer matrix"):

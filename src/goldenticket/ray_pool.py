@@ -9,6 +9,7 @@ import logging
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 
+from goldenticket.config import OptionError
 from goldenticket.errors import UserError
 
 RETRIES = 3  # new actors per shard before giving up
@@ -33,7 +34,7 @@ class RayPool:
         try:
             import ray
         except ImportError:
-            raise UserError("--backend ray needs Ray: pip install 'goldenticket[ray]'") from None
+            raise OptionError("backend ray needs Ray: pip install 'goldenticket[ray]'", "backend") from None
         self._ray = ray
         if not ray.is_initialized():
             try:

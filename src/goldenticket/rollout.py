@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from goldenticket.config import OptionError
 from goldenticket.errors import UserError
 from goldenticket.factories import call_users, picklable
 from goldenticket.noise import NoiseSource
@@ -181,11 +182,12 @@ class Engine:
         side by side, one env each: 16 fills one block of the bundled policies' batched call."""
         most = 4 * (os.cpu_count() or 1)
         if backend not in BACKENDS:
-            raise UserError(f"unknown --backend {backend!r}; choose from {list(BACKENDS)}")
+            raise OptionError(f"unknown backend {backend!r}; choose from {list(BACKENDS)}", "backend")
         if address is not None and backend != "ray":
-            raise UserError("--address needs --backend ray")
+            raise OptionError("address needs backend ray", "address", "backend")
         if workers < 1 or (backend == "local" and workers > most):
-            raise UserError(f"--workers must be between 1 and {most} (4 per CPU here), got {workers}")
+            raise OptionError(f"workers must be between 1 and {most} (4 per CPU here), got {workers}",
+                              "workers")
         local = backend == "local" and workers == 1
         self.policy = (loaded or load_policy(policy)) if local else None
         self.label, self.in_workers = policy_label(loaded or policy), not local  # for messages

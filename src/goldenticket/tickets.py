@@ -13,6 +13,7 @@ import numpy as np
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import save
 
+from goldenticket.config import OptionError
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
 
@@ -70,8 +71,9 @@ class Ticket:
             found_for.append(f"task {meta['task']}")
         if found_for:
             on = "" if task is None else f" on {task}"
-            raise UserError(f"{where}: ticket {self.id} was found for {' and '.join(found_for)}, not "
-                            f"this policy ({fingerprint}){on}; --allow-transfer runs it anyway")
+            raise OptionError(f"{where}: ticket {self.id} was found for {' and '.join(found_for)}, not "
+                              f"this policy ({fingerprint}){on}; allow_transfer runs it anyway",
+                              "allow_transfer")
 
     def search_seeds(self) -> range | None:
         """The search seeds it was found on (metadata `search_seeds`: [first, last]), if recorded."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from goldenticket.config import OptionError
 from goldenticket.errors import UserError
 from goldenticket.factories import is_import_string
 from goldenticket.tasks.gym import GymTask
@@ -16,12 +17,13 @@ def get_task(task: str | Callable, max_steps: int | None = None,
     `pkg.mod:factory`) with an optional success predicate; unknown names are a UserError listing
     a few valid ones."""
     if max_steps is not None and max_steps < 1:
-        raise UserError(f"--max-steps must be >= 1, got {max_steps}")
+        raise OptionError(f"max_steps must be >= 1, got {max_steps}", "max_steps")
     limit = {} if max_steps is None else {"max_steps": max_steps}
     if callable(task) or is_import_string(task):
         return GymTask(task, success=success, **limit)
     if success is not None:
-        raise UserError(f"--success applies to Gymnasium tasks; {task!r} has its own success signal")
+        raise OptionError(f"success applies to Gymnasium tasks; {task!r} has its own success signal",
+                          "success")
     if task not in task_names():
         hint = ", ".join(n for n in task_names() if "pick" in n or "reach" in n)
         raise UserError(f"unknown task {task!r}; tasks look like: {hint} (or package.module:factory "

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goldenticket.errors import UserError
+from goldenticket.config import OptionError
 
 
 @dataclass(frozen=True)
@@ -35,13 +35,14 @@ class Subspace:
             try:
                 channels = tuple(int(c) for c in rest.split(","))
             except ValueError:
-                raise UserError(f"--subspace {text}: channels must be integers, e.g. channels:3") from None
+                raise OptionError(f"subspace {text}: channels must be integers, e.g. channels:3",
+                                  "subspace") from None
             action_dim = noise_shape[1]
             if len(set(channels)) != len(channels) or not all(0 <= c < action_dim for c in channels):
-                raise UserError(f"--subspace {text}: channels must be distinct, in 0..{action_dim - 1} "
-                                f"(the policy's action has {action_dim} dims)")
+                raise OptionError(f"subspace {text}: channels must be distinct, in 0..{action_dim - 1} "
+                                  f"(the policy's action has {action_dim} dims)", "subspace")
             return cls(kind, tuple(sorted(channels)))
-        raise UserError(f"--subspace {text!r}: choose full, tiled or channels:I,J")
+        raise OptionError(f"subspace {text!r}: choose full, tiled or channels:I,J", "subspace")
 
     def __str__(self) -> str:
         return f"channels:{','.join(map(str, self.channels))}" if self.kind == "channels" else self.kind

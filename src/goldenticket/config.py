@@ -1,0 +1,299 @@
+"""Every option of a search and of an evaluation, once: typed fields with their defaults and help.
+
+The command line's flags are generated from these fields (`cli.py`: field `search_seeds` is
+`--search-seeds`), a run can be given as a TOML file whose keys are the fields, and every search's
+output folder keeps the resolved config it ran with (`config.toml`), so it can be run again from
+that folder alone: `goldenticket search --config runs/x/config.toml`.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+import tomllib
+from collections.abc import Callable, Sequence
+from dataclasses import MISSING, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from goldenticket.errors import UserError
+from goldenticket.factories import import_name
+from goldenticket.ticket_search.optimizers import OPTIMIZERS
+
+MAX_NONFINITE = 0.1  # default: stop once more than this fraction of an arm's held-out episodes is non-finite
+OBJECTIVE_NAMES = ("success", "success-progress", "discounted-success", "length", "speed")
+
+
+class OptionError(UserError):
+    """A bad option: the message names options by their field (`search_seeds`); `as_flags` names
+    them as the command line spells them (`--search-seeds`)."""
+
+    def __init__(self, message: str, *names: str):
+        super().__init__(message)
+        self.names = names
+
+    def as_flags(self) -> str:
+        text = str(self)
+        for name in self.names:
+            text = re.sub(rf"(?<![\w-]){name}(?![\w-])", flag(name), text)
+        return text
+
+
+def flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def option(default=MISSING, help: str = "", **cli) -> field:
+    """A config field; `cli` holds how the command line spells it beyond the generated flag
+    (choices, action, metavar, a command-line-only default), or cli=False for API-only fields."""
+    return field(default=default, metadata={"help": help, "cli": cli})
+
+
+POLICY_HELP = ("bundled policy name (see `goldenticket policies`) or a folder written by `train` (append "
+               "@N to run N denoising steps), or package.module:factory returning a NoisePolicy")
+TASK_HELP = "task name, e.g. metaworld/pick-place-v3, or package.module:factory returning a gymnasium.Env"
+SUCCESS_HELP = ("Gymnasium tasks: package.module:function(obs, info) -> bool deciding success "
+                "(default: info['success'] or info['is_success'])")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EngineOptions:
+    """Where episodes run; results do not depend on it."""
+
+    workers: int = option(2, "worker processes (results do not depend on it)")
+    backend: str = option("local", "where episodes run: local processes, or Ray actors (results do not "
+                          "depend on it)", choices=("local", "ray"))
+    address: str | None = option(None, "Ray cluster address, e.g. ray://head:10001 (default: start a "
+                                 "local Ray instance)")
+    max_nonfinite: float = option(MAX_NONFINITE, "an episode whose policy call returns NaN or infinite "
+                                  "actions ends as a failure; stop when more than this fraction of an "
+                                  "arm's held-out episodes end so")
+
+    def check(self) -> None:
+        if self.workers <= 0:
+            raise OptionError(f"workers must be > 0, got {self.workers}", "workers")
+        check_max_nonfinite(self.max_nonfinite)
+
+
+def check_max_nonfinite(fraction: float) -> None:
+    if not 0 <= fraction <= 1:
+        raise OptionError(f"max_nonfinite must be a fraction in [0, 1], got {fraction}", "max_nonfinite")
+
+
+@dataclass(frozen=True)
+class SearchConfig(EngineOptions):
+    """One search run; the same config and seed always give the same numbers. `task` may be
+    several task names (a tuple): one ticket for a multi-task policy, judged per task."""
+
+    policy: str | object = option(help=POLICY_HELP, required=True)  # or a NoisePolicy object
+    task: str | Callable | tuple[str, ...] = option(
+        help=TASK_HELP + "; repeat for one ticket over several tasks of a multi-task policy (task-averaged "
+        "success, judged per task)", action="append", required=True)
+    method: str = option("cma-es", "random search, CEM, zeroth-order search, CEM raced by halving "
+                         "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES",
+                         choices=tuple(OPTIMIZERS))
+    budget: int = option(2000, "search episodes to spend (per task for transfer)")
+    seed: int = option(0, "seed of every random draw")
+    search_seeds: int = option(20, "initial states to search on (per task)")
+    heldout: int = option(200, "held-out initial states (per task) to judge base, zero ticket and tickets on")
+    top_k: int = option(3, "best search tickets judged on held-out states")
+    objective: str = option("success", "episode return the search maximises; speed: short successful "
+                            "episodes; success-progress: success, ties broken by how far failed episodes "
+                            "got (Meta-World's shaped reward at their end)", choices=OBJECTIVE_NAMES)
+    stop_after_perfect: int | None = option(3, "stop once this many tickets succeed on every search seed "
+                                            "(0 or None: never)")
+    max_tickets: int | None = option(None, "stop after this many distinct tickets (default: no cap)")
+    max_steps: int | None = option(None, "episode step limit (default: the task's, 150 for Meta-World)")
+    success: str | Callable | None = option(None, SUCCESS_HELP)
+    subspace: str = option("full", "what the search varies: full (every entry), tiled (one action-sized "
+                           "vector repeated over the horizon), channels:I,J (those action channels; the "
+                           "others 0)")
+    front_objective: str | None = option(None, "a second objective: also find the Pareto front between "
+                                         "the two (front.json, front.png)", choices=OBJECTIVE_NAMES)
+    validation_seeds: int | None = option(None, "run the 3 x top_k best search tickets on this many "
+                                          "validation states and judge the top_k of those on held-out "
+                                          "states (default: 100 for one task, 0 for several; 0: judge the "
+                                          "search's top_k)")
+    no_regression: bool = option(False, "several tasks: never pick a ticket significantly worse than the "
+                                 "base on a task", action="store_true")
+
+    def __post_init__(self):
+        if isinstance(self.task, list):
+            object.__setattr__(self, "task", self.task[0] if len(self.task) == 1 else tuple(self.task))
+        if self.stop_after_perfect == 0:
+            object.__setattr__(self, "stop_after_perfect", None)
+
+    @property
+    def tasks(self) -> tuple:
+        """The run's tasks: one, or several for a multi-task run."""
+        return self.task if isinstance(self.task, tuple) else (self.task,)
+
+    def check(self) -> None:
+        """Every option, before any episode runs."""
+        super().check()
+        if self.stop_after_perfect is not None and self.stop_after_perfect < 0:
+            raise OptionError(f"stop_after_perfect must be >= 0 (0: never), got {self.stop_after_perfect}",
+                              "stop_after_perfect")
+        for name in ("seed", "validation_seeds"):
+            if getattr(self, name) is not None and getattr(self, name) < 0:
+                raise OptionError(f"{name} must be >= 0, got {getattr(self, name)}", name)
+        for name in ("budget", "search_seeds", "heldout", "top_k", "max_tickets", "max_steps"):
+            if getattr(self, name) is not None and getattr(self, name) <= 0:
+                raise OptionError(f"{name} must be > 0, got {getattr(self, name)}", name)
+        for name in ("objective", "front_objective"):
+            if getattr(self, name) not in (*OBJECTIVE_NAMES, None):
+                raise OptionError(f"unknown {name} {getattr(self, name)!r}; choose from "
+                                  f"{list(OBJECTIVE_NAMES)}", name)
+        if self.method not in OPTIMIZERS:
+            raise OptionError(f"unknown method {self.method!r}; choose from {list(OPTIMIZERS)}", "method")
+        self._check_tasks()
+        self._check_front()
+
+    def _check_tasks(self) -> None:
+        if len(self.tasks) > 1:
+            for name in ("success", "front_objective"):
+                if getattr(self, name):
+                    raise OptionError(f"{name} is for single-task runs; not with several task", name, "task")
+        elif self.no_regression:
+            raise OptionError("no_regression needs several task (it guards every task's success)",
+                              "no_regression", "task")
+
+    def _check_front(self) -> None:
+        from goldenticket.tasks.base import FRONT_OBJECTIVES
+
+        if not self.front_objective:
+            return
+        if self.front_objective == self.objective:
+            raise OptionError(f"objective {self.objective} twice: a Pareto front needs two different "
+                              "objectives", "objective")
+        if not {self.objective, self.front_objective} <= set(FRONT_OBJECTIVES):
+            raise OptionError(f"a Pareto front's objectives must be among {list(FRONT_OBJECTIVES)}",
+                              "objective", "front_objective")
+
+    def validation(self) -> int:
+        """Validation seeds this run uses."""
+        if self.validation_seeds is None:
+            return 0 if len(self.tasks) > 1 else 100
+        return self.validation_seeds
+
+    def optimizer(self, noise_shape: tuple[int, int], search_seeds: list[int]):
+        """This run's optimizer over its sub-space, fresh from its seed; OptionError if the budget
+        cannot score even the first ticket it asks for."""
+        from goldenticket.ticket_search import make_optimizer
+        from goldenticket.ticket_search.subspace import Subspace
+
+        searched = Subspace.parse(self.subspace, noise_shape).shape(noise_shape)
+        optimizer = make_optimizer(self.method, searched, search_seeds, np.random.default_rng(self.seed))
+        needed = len(copy.deepcopy(optimizer).ask()[0].seeds)
+        if self.budget < needed:
+            raise OptionError(f"budget {self.budget} is too small: {self.method} needs {needed} "
+                              "episodes to score one ticket", "budget")
+        return optimizer
+
+
+@dataclass(frozen=True)
+class EvaluateConfig(EngineOptions):
+    """Base, zero ticket and tickets judged on held-out seeds."""
+
+    policy: str | object = option(help=POLICY_HELP, required=True)
+    task: str | Callable | None = option(None, TASK_HELP + " (default: the task the tickets were found on)")
+    tickets: tuple = option((), "ticket file or bundled ticket id; repeat for several; without it, only the "
+                            "base and the zero ticket run", action="append", flag="--ticket")
+    seeds: Sequence[int] = option(range(1_000_000, 1_000_200), "held-out seed range A:B, A included, B "
+                                  "not (seeds 1000000:2000000 name held-out states)", required=True,
+                                  seed_range=True)
+    seed: int = option(0, "seed of the base policy's Gaussian noise")
+    max_steps: int | None = option(None, "episode step limit (default: the tickets' own, else the task's)")
+    success: str | Callable | None = option(None, SUCCESS_HELP.replace("(default: ", "(default: the "
+                                                                       "tickets' own, else "))
+    allow_transfer: bool = option(False, "run tickets found for another policy or task, or under another "
+                                  "max_steps or success (transfer studies)", action="store_true")
+    mixture: bool = option(False, "add an arm that draws one of the tickets at every policy call, and "
+                           "report each arm's diversity (spread of executed actions from one initial "
+                           "state)", action="store_true")
+    epsilon: float = option(0.0, "with mixture: fresh Gaussian noise instead of a ticket with this "
+                            "probability")
+
+    def __post_init__(self):
+        object.__setattr__(self, "tickets", tuple(self.tickets))
+
+    def check(self) -> None:
+        super().check()
+        if self.seed < 0:
+            raise OptionError(f"seed must be >= 0, got {self.seed}", "seed")
+        if not 0 <= self.epsilon <= 1 or (self.epsilon and not self.mixture):
+            raise OptionError(f"epsilon must be in [0, 1] and comes with mixture, got {self.epsilon}",
+                              "epsilon", "mixture")
+
+
+def make(cls, values: dict):
+    """`cls(**values)`, or one line naming the options `cls` does not have."""
+    names = {f.name for f in fields(cls)}
+    if unknown := sorted(set(values) - names):
+        raise UserError(f"unknown option {', '.join(unknown)}; options are: {', '.join(sorted(names))}")
+    missing = [f.name for f in fields(cls) if f.default is MISSING and f.name not in values]
+    if missing:
+        raise OptionError(f"{', '.join(missing)} must be given", *missing)
+    return cls(**values)
+
+
+def read_toml(path: Path) -> dict:
+    """A config file's values (keys are the fields), as the fields' types take them."""
+    try:
+        values = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise UserError(f"cannot read config {path}: {exc.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise UserError(f"{path}: not a TOML file ({exc})") from None
+    if isinstance(values.get("seeds"), str):
+        values["seeds"] = seed_range(values["seeds"])
+    return values
+
+
+def seed_range(text: str) -> range:
+    """Seeds "A:B": A included, B not, as Python's range(A, B)."""
+    try:
+        a, b = (int(x) for x in text.split(":"))
+    except ValueError:
+        raise OptionError(f"seeds: expected A:B (integers), got {text!r}", "seeds") from None
+    if not 0 <= a < b:
+        raise OptionError(f"seed range {text!r} must satisfy 0 <= A < B", "seeds")
+    return range(a, b)
+
+
+def to_toml(config) -> str:
+    """The config as a TOML file `read_toml` gives back (None fields left out; a policy object or a
+    function as its import string)."""
+    lines = []
+    for f in cli_fields(type(config)):
+        value = getattr(config, f.name)
+        if value is None:
+            continue
+        if isinstance(value, range):
+            value = f"{value.start}:{value.stop}"
+        elif not isinstance(value, str | int | float | bool | tuple | list):
+            value = named(value)
+        lines.append(f"{f.name} = {_toml_value(value)}")
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple | list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return json.dumps(value)  # a TOML basic string, integer or float
+
+
+def named(obj) -> str | None:
+    """A user's object as files record it: a string as it is, else its import string."""
+    return obj if obj is None or isinstance(obj, str) else import_name(obj)
+
+
+def cli_fields(cls, skip: Sequence[str] = ()) -> list:
+    """The fields the command line spells as flags: the run's own, then where episodes run."""
+    engine = {f.name for f in fields(EngineOptions)}
+    chosen = [f for f in fields(cls) if f.metadata.get("cli") is not False and f.name not in skip]
+    return sorted(chosen, key=lambda f: f.name in engine)
