@@ -29,6 +29,7 @@ def test_scheduler_policy_keeps_the_noise_policy_contract(make):
     assert policy.fingerprint() == make().fingerprint()
 
 
+@pytest.mark.slow
 def test_scheduler_policies_run_through_workers_by_import_string():
     for name in ("byo_example:make_ddim_policy", "byo_example:make_flow_policy"):
         rows = goldenticket.evaluate(name, "byo_example:make_env", seeds=range(1_000_000, 1_000_006),

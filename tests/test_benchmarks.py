@@ -59,6 +59,7 @@ def test_search_method_winner_per_budget():
     assert search_methods.shrinkage(results) == pytest.approx(1 - np.mean(held))
 
 
+@pytest.mark.slow
 def test_dsrl_steers_the_frozen_policy_through_the_noise_space():
     import dsrl
     from stable_baselines3 import SAC

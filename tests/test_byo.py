@@ -30,6 +30,7 @@ def _cli(*argv: str) -> subprocess.CompletedProcess:
                           text=True, timeout=300, cwd=HERE)
 
 
+@pytest.mark.slow
 def test_search_and_evaluate_from_the_cli_resume_and_agree_with_the_api(tmp_path):
     out = tmp_path / "cli"
     first = _cli(*SEARCH, "--workers", "2", "--out", str(out))
@@ -53,6 +54,7 @@ def test_search_and_evaluate_from_the_cli_resume_and_agree_with_the_api(tmp_path
     assert rows["base"]["n"] == 10 and len(rows) == 3
 
 
+@pytest.mark.slow
 def test_the_api_takes_objects_and_a_success_predicate(tmp_path):
     sys.path.insert(0, str(HERE))
     import byo_example
@@ -86,6 +88,7 @@ def test_the_builtin_task_through_the_gymnasium_door_gives_the_same_episodes():
     assert 0 < sum(r.success for r in builtin) < len(builtin)
 
 
+@pytest.mark.slow
 def test_users_mistakes_are_one_line_and_exit_2(tmp_path, capsys):
     base = ["evaluate", "--seeds", "1000000:1000004", "--max-steps", "30", "--workers", "1",
             "--plot", str(tmp_path / "e.png")]
@@ -103,6 +106,7 @@ def test_users_mistakes_are_one_line_and_exit_2(tmp_path, capsys):
     assert "ignore reset(seed=)" in lines["Meta-World's own env"]
 
 
+@pytest.mark.slow
 def test_readme_example_runs_as_written(tmp_path):
     """README's mine.py and its Python API script, run as a user would: objects go to spawned
     workers, and the run names the task by the script's module, as the CLI does. Without its
@@ -175,12 +179,14 @@ def _evaluate(*options: str) -> list[str]:
     return argv
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fault", FAULTS)
 def test_a_fault_in_the_users_code_is_one_line_naming_it(capsys, fault):
     options, says = FAULTS[fault]
     assert says in _error_line(capsys, _evaluate(*options))
 
 
+@pytest.mark.slow
 def test_a_fault_in_a_worker_process_is_the_same_line_and_verbose_shows_its_traceback(capsys):
     policy = ("--policy", "byo_example:make_raising_policy")
     here = _error_line(capsys, _evaluate(*policy))
@@ -193,6 +199,7 @@ def test_a_fault_in_a_worker_process_is_the_same_line_and_verbose_shows_its_trac
     assert "Traceback" in verbose.stderr and 'return obs["velocity"]' in verbose.stderr
 
 
+@pytest.mark.slow
 def test_a_policy_rarely_non_finite_gets_a_verdict_counting_those_episodes(capsys, tmp_path):
     """Its rare non-finite episodes are failures, counted per arm in the table and summary.json;
     more than --max-nonfinite of an arm's held-out episodes stops the run in one line."""
@@ -213,6 +220,7 @@ def test_a_policy_rarely_non_finite_gets_a_verdict_counting_those_episodes(capsy
     assert all("nonfinite_episodes" in t for t in summary["tickets"])
 
 
+@pytest.mark.slow
 def test_a_policy_always_non_finite_stops_at_its_first_heldout_shard(capsys, tmp_path):
     line = _error_line(capsys, ["search", "--policy", "byo_example:make_nan_policy", "--task",
                                 "byo_example:make_env", "--max-steps", "30", "--heldout", "50", "--workers",
@@ -223,6 +231,7 @@ def test_a_policy_always_non_finite_stops_at_its_first_heldout_shard(capsys, tmp
         assert con.execute("SELECT count(*), min(cause) FROM episodes").fetchone() == (16, NONFINITE)
 
 
+@pytest.mark.slow
 def test_an_env_unseeded_only_in_pool_workers_stops_the_run_in_one_line(tmp_path):
     """It passes the seed checks of one process and of a spawned one; the episodes' own initial
     states, checked as they come back from the workers, give it away."""

@@ -44,6 +44,7 @@ def test_search_writes_summary_tickets_and_store(search_run):
     assert (search_run / "run.sqlite").is_file()
 
 
+@pytest.mark.slow
 def test_same_command_same_numbers_in_process_or_pool(search_run, policy_dir, tmp_path):
     assert _search(policy_dir, tmp_path, workers=2) == 0
     first = json.loads((search_run / "summary.json").read_text())

@@ -52,6 +52,7 @@ def test_a_flag_given_twice_is_refused(tmp_path, capsys):
     assert exit_.value.code == 2 and "--budget given twice" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_run_repeats_from_its_folder_alone(tmp_path, monkeypatch, capsys):
     monkeypatch.syspath_prepend(str(HERE))
     first = tmp_path / "first"
@@ -65,6 +66,7 @@ def test_a_run_repeats_from_its_folder_alone(tmp_path, monkeypatch, capsys):
     assert (again / "config.toml").read_text() == (first / "config.toml").read_text()
 
 
+@pytest.mark.slow
 def test_flags_override_the_config_file(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(HERE))
     file = tmp_path / "run.toml"
@@ -88,6 +90,7 @@ def test_a_bad_config_file_is_one_line(tmp_path, capsys, text, says):
     assert says in err and err.count("\n") == 1 and not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_evaluate_takes_a_config_file_with_a_seed_range(tmp_path, monkeypatch, capsys):
     monkeypatch.syspath_prepend(str(HERE))
     file = tmp_path / "eval.toml"

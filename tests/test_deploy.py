@@ -73,6 +73,7 @@ def test_readme_deploy_snippet_runs_and_refuses_another_policys_ticket():
         deploy("metaworld/reach-v3/flow", "ac7033f127b8")
 
 
+@pytest.mark.slow
 def test_one_policy_has_one_identity_from_the_cli_and_the_api(mine, tmp_path):
     assert identity(load_policy("mine:make_policy")) == identity(mine.BiasedController())
     summary = goldenticket.search(mine.BiasedController(), mine.make_env, tmp_path / "api", max_steps=30,
@@ -88,6 +89,7 @@ def test_one_policy_has_one_identity_from_the_cli_and_the_api(mine, tmp_path):
     assert rows[summary["best"]["ticket_id"]]["success_rate"] == summary["best"]["success_rate"]
 
 
+@pytest.mark.slow
 def test_a_setting_that_contradicts_the_tickets_is_refused_with_both_values(mine, tmp_path):
     summary = goldenticket.search("mine:make_policy", "mine:make_env", tmp_path / "run", max_steps=30,
                                   budget=40, search_seeds=10, heldout=10, top_k=1, validation_seeds=0,
@@ -103,6 +105,7 @@ def test_a_setting_that_contradicts_the_tickets_is_refused_with_both_values(mine
         goldenticket.evaluate("mine:make_policy", None, [], range(1_000_000, 1_000_010))
 
 
+@pytest.mark.slow
 def test_options_are_checked_before_any_episode_or_store_write(tmp_path):
     out = tmp_path / "run"
     done = _cli(tmp_path, "search", "--policy", "metaworld/reach-v3/flow", "--task", "metaworld/reach-v3",
@@ -114,6 +117,7 @@ def test_options_are_checked_before_any_episode_or_store_write(tmp_path):
     assert done.returncode == 2 and "--workers" in done.stderr and not out.exists()
 
 
+@pytest.mark.slow
 def test_the_api_names_unknown_options_and_takes_several_tasks(tmp_path):
     with pytest.raises(UserError, match="unknown option unknown_option"):
         goldenticket.search("metaworld/mt10/flow", "metaworld/reach-v3", tmp_path / "x", unknown_option=1)
@@ -125,6 +129,7 @@ def test_the_api_names_unknown_options_and_takes_several_tasks(tmp_path):
     assert set(summary["tasks"]) == {"metaworld/reach-v3", "metaworld/push-v3"}
 
 
+@pytest.mark.slow
 def test_multi_task_search_checks_every_tasks_seeding(tmp_path):
     sys.path.insert(0, str(Path(__file__).parent))
     with pytest.raises(UserError, match="does not fix the initial state"):

@@ -8,11 +8,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).parents[1]
 sys.path.insert(0, str(ROOT / "examples"))
 
 
+@pytest.mark.slow
 def test_fetch_push_is_searched_from_the_cli(tmp_path):
     out = tmp_path / "run"
     argv = ["search", "--policy", "examples.fetch_push:make_policy",

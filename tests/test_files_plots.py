@@ -67,6 +67,7 @@ def test_evaluate_refuses_a_fifo_as_plot_in_one_line(tmp_path, capsys, monkeypat
     assert stat.S_ISFIFO(fifo.lstat().st_mode)
 
 
+@pytest.mark.slow
 def test_evaluate_draws_no_picture_unless_asked(tmp_path, capsys, monkeypatch):
     monkeypatch.syspath_prepend(str(HERE))
     monkeypatch.chdir(tmp_path)
@@ -135,6 +136,7 @@ def test_search_picture_tells_tickets_with_fewer_episodes_apart(tmp_path, drawn)
     assert np.array_equal(ax.lines[0].get_ydata(), [np.nan, 0.3, 0.5], equal_nan=True)
 
 
+@pytest.mark.slow
 def test_search_marks_the_tickets_the_run_validated_and_judged(tmp_path, drawn, monkeypatch):
     monkeypatch.syspath_prepend(str(HERE))
     cfg = SearchConfig("byo_example:make_policy", "byo_example:make_env", method="rs", budget=30,

@@ -9,6 +9,8 @@ from goldenticket.tasks import seeds_in
 from goldenticket.tasks.metaworld import MetaWorldEnv, task_names
 from goldenticket.tasks.metaworld_fast import SUCCESS, quaternion
 
+pytestmark = pytest.mark.slow
+
 
 def test_quaternion_is_scipys_to_the_bit():
     half_turns = [np.diag(d) for d in ([1, -1, -1], [-1, 1, -1], [-1, -1, 1], [1, 1, 1])]

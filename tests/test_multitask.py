@@ -46,6 +46,7 @@ def test_the_one_hot_conditions_the_actions(mt_policy):
         policy.conditioned("metaworld/push-v3")
 
 
+@pytest.mark.slow
 def test_multitask_search_judges_each_task_on_unsearched_seeds(mt_policy, tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["search", "--policy", mt_policy, *_tasks_args(), *SMALL, "--top-k", "2",
@@ -109,6 +110,7 @@ def test_greedy_cover_picks_the_fewest_tickets_and_falls_back_to_the_best():
     assert uses == {"t1": "B", "t2": "A", "t3": "B", "t4": "base", "t5": "C"}
 
 
+@pytest.mark.slow
 def test_transfer_writes_the_matrix_heatmap_and_cover(mt_policy, tmp_path, capsys):
     out = tmp_path / "transfer"
     assert main(["transfer", "--policy", mt_policy, *_tasks_args(), *SMALL, "--out", str(out)]) == 0
@@ -134,6 +136,7 @@ def test_transfer_writes_the_matrix_heatmap_and_cover(mt_policy, tmp_path, capsy
     assert "needs --budget" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_several_tasks_validate_on_every_task_when_asked(mt_policy, tmp_path):
     out = tmp_path / "validated"
     assert main(["search", "--policy", mt_policy, *_tasks_args(), *SMALL, "--top-k", "1",

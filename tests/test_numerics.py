@@ -12,6 +12,9 @@ import sys
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import pytest
+
+pytestmark = pytest.mark.slow
 
 EPISODES = """
 import hashlib, json

@@ -49,6 +49,7 @@ def test_bad_policy_inputs(tmp_path):
         MLPPolicy.load(tmp_path)
 
 
+@pytest.mark.slow
 def test_every_bundled_policy_loads_runs_and_has_a_model_card(rng):
     from goldenticket.policies import BUNDLED_DIR, for_task, policy_names
 
@@ -88,6 +89,7 @@ def test_zoo_ships_at_least_22_policies_with_measured_cards():
         assert all(t["base"]["n"] == t["zero"]["n"] == 200 for t in per_task.values())
 
 
+@pytest.mark.slow
 def test_a_shipped_ticket_reproduces_its_recorded_heldout_success():
     from goldenticket.noise import Constant
     from goldenticket.policies import bundled_tickets
@@ -105,6 +107,7 @@ def test_a_shipped_ticket_reproduces_its_recorded_heldout_success():
     assert np.mean([r.success for r in results]) == meta["heldout"]["success_rate"]
 
 
+@pytest.mark.slow
 def test_shipped_tickets_name_their_policy_and_their_id_names_them():
     from goldenticket.policies import bundled_tickets
     from goldenticket.tickets import Ticket

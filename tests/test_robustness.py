@@ -73,11 +73,13 @@ def reference(tmp_path_factory) -> dict:
     return {"numbers": _numbers(out), "stderr": proc.stderr, "out": out}
 
 
+@pytest.mark.slow
 def test_progress_bars_never_count_past_their_total(reference):
     counts = [(int(a), int(b)) for a, b in re.findall(r"\| (\d+)/(\d+) \[", reference["stderr"])]
     assert counts and all(done <= total for done, total in counts), counts
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("episodes, workers", [(1, 1), (BASELINES + 1, 2), (BASELINES + 24, 1),
                                                (BASELINES + 42, 2)],
                          ids=["baselines", "search", "validation", "top tickets"])
@@ -88,6 +90,7 @@ def test_kill_9_then_rerun_gives_the_same_numbers(reference, tmp_path, episodes,
     assert _numbers(tmp_path) == reference["numbers"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_ctrl_c_and_sigterm_stop_with_one_line_and_resume(reference, tmp_path, sig):
     code, stderr, kept = _stop_after(tmp_path, BASELINES, sig)
@@ -98,6 +101,7 @@ def test_ctrl_c_and_sigterm_stop_with_one_line_and_resume(reference, tmp_path, s
     assert _numbers(tmp_path) == reference["numbers"]
 
 
+@pytest.mark.slow
 def test_two_processes_on_one_out_both_finish_with_the_same_numbers(reference, tmp_path):
     procs = [subprocess.Popen(_command(tmp_path), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                               text=True) for _ in range(2)]
@@ -106,6 +110,7 @@ def test_two_processes_on_one_out_both_finish_with_the_same_numbers(reference, t
     assert _numbers(tmp_path) == reference["numbers"]
 
 
+@pytest.mark.slow
 def test_two_processes_with_different_options_on_one_out_one_is_refused(tmp_path):
     commands = [_command(tmp_path), _command(tmp_path) + ["--seed", "1"]]
     procs = [subprocess.Popen(c, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -137,6 +142,7 @@ def _fill(disk: Path) -> Path:
     return ballast
 
 
+@pytest.mark.slow
 def test_disk_filling_mid_run_is_one_line_and_a_rerun_resumes(reference, disk):
     out = disk / "run"
     proc = subprocess.Popen(_command(out), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -152,17 +158,20 @@ def test_disk_filling_mid_run_is_one_line_and_a_rerun_resumes(reference, disk):
     assert _numbers(out) == reference["numbers"]
 
 
+@pytest.mark.slow
 def test_read_only_out_is_one_line(disk):
     subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
     assert "Read-only" in _one_error_line(_run(disk / "run"))
 
 
+@pytest.mark.slow
 def test_out_that_is_or_lies_under_a_file_is_one_line(tmp_path):
     (tmp_path / "file").write_text("x")
     assert "is a file" in _one_error_line(_run(tmp_path / "file"))
     assert "Not a directory" in _one_error_line(_run(tmp_path / "file" / "run"))
 
 
+@pytest.mark.slow
 def test_damaged_store_is_one_line(tmp_path, reference):
     assert _run(tmp_path).returncode == 0
     store = tmp_path / "run.sqlite"
@@ -172,6 +181,7 @@ def test_damaged_store_is_one_line(tmp_path, reference):
     assert "move it away" in _one_error_line(_run(tmp_path))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damage, says", [
     ("UPDATE episodes SET ret = 'lots' WHERE rowid = 1", "non-numeric ret"),
     ("UPDATE config SET value = 'not json'", "config is not JSON"),
@@ -197,6 +207,7 @@ def test_a_truncated_policy_file_is_one_line(tmp_path, capsys):
     assert len(err.splitlines()) == 1, err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("options", [{"--budget": "3", "--search-seeds": "20"},  # racing's 1st tier: 4
                                      {"--stop-after-perfect": "-1"}, {"--workers": "0"},
                                      {"--max-steps": "0"}, {"--seed": "-1"}], ids=str)

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.policies import load_policy
@@ -7,6 +8,7 @@ from goldenticket.tasks import get_task, seeds_in
 from goldenticket.tasks.base import observation_digest
 
 
+@pytest.mark.slow
 def test_results_do_not_depend_on_batch_slot():
     """The bundled (trained) policy, so episodes differ in length and outcome."""
     policy, task = load_policy("metaworld/pick-place-v3/flow"), get_task("metaworld/pick-place-v3")

@@ -93,11 +93,13 @@ BARS = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("method", "kind", "bar"), BARS)
 def test_optimizer_finds_tickets_near_the_hidden_optimum(method, kind, bar):
     assert closeness_after_search(method, kind) < bar
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("method", "kind", "bar"), BARS)
 def test_bars_reject_a_search_that_never_improves(method, kind, bar):
     dummy = "stuck" if method == "rs" else "rs"

@@ -147,6 +147,7 @@ def _source(due: dict, seed: int):
     return Gaussian(seed) if due["noise"] is None else Constant(np.asarray(due["noise"], dtype=np.float32))
 
 
+@pytest.mark.slow
 def test_a_simulated_robot_and_operator_reach_the_automatic_verdict(tmp_path):
     """Meta-World is the robot: it polls the HTTP API, runs each episode (env seed = episode
     number) and posts the true outcome; the server is killed with SIGKILL mid-way and restarted."""
@@ -221,6 +222,7 @@ def test_session_commands_refuse_bad_input_in_one_line(tmp_path, capsys):
     assert "1..65535" in errors[4] and "cannot listen" in errors[5]
 
 
+@pytest.mark.slow
 def test_readme_robot_loop_runs_as_written(tmp_path):
     """README's robot loop against a live server, for a policy that takes `noise=`; here the
     'robot' is Meta-World and it also plays the operator, posting each true outcome."""

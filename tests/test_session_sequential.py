@@ -267,6 +267,7 @@ while (due := robot.next()) is not None:
 """
 
 
+@pytest.mark.slow
 def test_a_robot_client_resumes_after_the_robot_and_the_server_are_killed(tmp_path):
     """The robot process and then the server are killed with SIGKILL mid-way; the robot restarts
     and goes on with the due episode, riding out the server's restart; the session stops early."""

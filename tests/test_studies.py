@@ -17,6 +17,7 @@ def _tickets(tmp_path, n: int) -> list[str]:
             for i in range(n)]
 
 
+@pytest.mark.slow
 def test_a_mixture_arm_is_judged_and_spreads_between_tickets_and_base(tmp_path, capsys):
     args = ["evaluate", "--policy", POLICY, "--task", TASK, "--seeds", "1000000:1000012", "--max-steps", "40",
             "--workers", "1", "--plot", str(tmp_path / "e.png"), "--mixture", "--epsilon", "0.2", "--json"]
@@ -49,6 +50,7 @@ def _search(tmp_path, subspace: str) -> int:
                  "--out", str(tmp_path / subspace.replace(":", "-"))])
 
 
+@pytest.mark.slow
 def test_subspace_search_saves_full_tickets_that_record_their_subspace(tmp_path):
     assert _search(tmp_path, "tiled") == 0 and _search(tmp_path, "channels:3") == 0
     tiled = Ticket.load(next((tmp_path / "tiled" / "tickets").glob("*.safetensors")))
@@ -73,6 +75,7 @@ def test_non_dominated_keeps_the_front_and_ties():
     assert non_dominated(points) == [0, 1, 2, 5]
 
 
+@pytest.mark.slow
 def test_a_two_objective_search_writes_the_front_and_a_policy_switches_along_it(tmp_path, capsys):
     from goldenticket.policies import TicketedPolicy, load_policy
 
@@ -106,6 +109,7 @@ def test_objective_combinations_are_checked(tmp_path, capsys):
     assert exit_.value.code == 2 and "--objective given twice" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_validation_seeds_choose_among_the_searchs_best_on_states_of_their_own(tmp_path):
     from goldenticket.store import RunStore
 

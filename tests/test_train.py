@@ -8,6 +8,7 @@ from goldenticket.tasks import get_task
 from goldenticket.train import DemoStyle, chunk_dataset, collect_demos, train_policy
 
 
+@pytest.mark.slow
 def test_demos_and_training_are_deterministic_for_a_seed():
     task = get_task("metaworld/pick-place-v3")
     style = DemoStyle(grasp_offset=0.02, action_noise=0.1)
@@ -24,6 +25,7 @@ def test_demos_and_training_are_deterministic_for_a_seed():
     assert deployed.act(obs[:3]).shape == (3, cfg.n_exec, 4)
 
 
+@pytest.mark.slow
 def test_train_with_few_steps_writes_a_complete_policy(tmp_path, capsys):
     from goldenticket.cli import main
 
