@@ -61,7 +61,7 @@ def test_a_policy_non_finite_on_too_many_heldout_episodes_stops_the_run_and_its_
     task, seeds = get_task("byo_example:make_env", max_steps=5), seeds_in("heldout", 40)
     with CountingEngine("byo_example:make_nan_policy", task, shard_size=8) as engine:
         with pytest.raises(UserError, match="NaN or infinite actions in 8 of the 40 held-out episodes of "
-                                            "base, more than --max-nonfinite 0.1 of them"):
+                                            "base, more than max_nonfinite 0.1 of them"):
             Evaluator(engine, RunStore(tmp_path / "run.sqlite")).run([("base", Gaussian(), seeds)])
         assert engine.asked == 40  # one engine call, stopped after its first shard
         rows = RunStore(tmp_path / "run.sqlite").episodes()

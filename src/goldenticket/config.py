@@ -71,9 +71,7 @@ class EngineOptions:
                                   "actions ends as a failure; stop when more than this fraction of an "
                                   "arm's held-out episodes end so")
 
-    def check(self) -> None:
-        if self.workers <= 0:
-            raise OptionError(f"workers must be > 0, got {self.workers}", "workers")
+    def check(self) -> None:  # workers: the engine knows this machine's limit (rollout.Engine)
         check_max_nonfinite(self.max_nonfinite)
 
 
