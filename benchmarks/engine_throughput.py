@@ -4,12 +4,13 @@ Raw: one stock Meta-World env stepped with random actions, no policy, no bookkee
 Fast: our Meta-World env (`tasks/metaworld_fast.py`, the same episodes to the bit) in the same loop.
 Engine: the bundled policy's episodes through `Engine` (policy calls, noise, resets included),
 with 1 ... `--workers` workers, on local processes and, if Ray is installed, on Ray actors of a
-local Ray instance; and the peak resident memory of a local worker process (a shard of 16
-episodes, so 16 envs). Profile: one policy call on a shard's 16 rows, in ms, split into matrix
-products, activations, other torch ops and the rest (Python, dispatch, conversions), beside the
-env time of the 16 x n_exec steps that call serves. Prints each rate and its ratio to the raw
-rate, or with `--json` one JSON object {"raw": steps/s, "fast": steps/s, "engine": {workers:
-steps/s}, "ray": {workers: steps/s}, "peak_rss_mb", "policy_call_ms": {part: ms}}.
+local Ray instance; and the peak resident memory of a local worker process (VmHWM; a shard of 16
+episodes, so 16 envs; measured with 2 or more workers, as 1 runs in-process). Profile: one
+policy call on a shard's 16 rows, in ms, split into matrix products, activations, other torch
+ops and the rest (Python, dispatch, conversions), beside the env time of the 16 x n_exec steps
+that call serves. Prints each rate and its ratio to the raw rate, or with `--json` one JSON
+object {"raw": steps/s, "fast": steps/s, "engine": {workers: steps/s}, "ray": {workers:
+steps/s}, "peak_rss_mb", "policy_call_ms": {part: ms}}.
 Writes benchmarks/results/engine_throughput.{json,png} (the PNG: steps/s against workers, with
 the ideal W x raw line).
 
@@ -21,7 +22,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
-import resource
+import os
 import time
 import warnings
 from pathlib import Path
@@ -94,7 +95,9 @@ def policy_call_ms(calls: int = 100) -> dict[str, float]:
     return parts
 
 
-def engine_steps_per_second(episodes: int, workers: int, backend: str = "local") -> float:
+def engine_steps_per_second(episodes: int, workers: int, backend: str = "local") -> tuple[float, float]:
+    """Env steps/s through the engine, and the peak resident memory of its worker processes in MB
+    (local workers only: 0 for Ray's or an in-process engine)."""
     task = get_task(TASK)
     batch = [Episode(Gaussian(0), s) for s in seeds_in("search", episodes)]
     with Engine(POLICY, task, workers=workers, backend=backend) as engine:
@@ -102,7 +105,22 @@ def engine_steps_per_second(episodes: int, workers: int, backend: str = "local")
         start = time.perf_counter()
         results = engine.evaluate(batch)
         elapsed = time.perf_counter() - start
-    return sum(r.length for r in results) / elapsed
+        peak = max(worker_peaks_mb(), default=0.0) if backend == "local" else 0.0
+    return sum(r.length for r in results) / elapsed, peak
+
+
+def worker_peaks_mb() -> list[float]:
+    """Peak resident memory (VmHWM) of this process's spawned worker processes, from /proc."""
+    peaks = []
+    for status in Path("/proc").glob("[0-9]*/status"):
+        try:
+            fields = dict(line.split(":", 1) for line in status.read_text().splitlines() if ":" in line)
+            cmdline = (status.parent / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if int(fields["PPid"]) == os.getpid() and b"spawn_main" in cmdline and "VmHWM" in fields:
+            peaks.append(int(fields["VmHWM"].split()[0]) / 1024)
+    return peaks
 
 
 def main() -> None:
@@ -115,10 +133,10 @@ def main() -> None:
     rates = {"raw": raw_steps_per_second(), "fast": fast_steps_per_second()}
     rates["policy_call_ms"] = policy_call_ms()
     for backend in backends:
-        rates["engine" if backend == "local" else backend] = {
-            w: engine_steps_per_second(args.episodes, w, backend) for w in range(1, args.workers + 1)}
-        if backend == "local":  # before Ray starts processes of its own
-            rates["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        measured = {w: engine_steps_per_second(args.episodes, w, backend) for w in range(1, args.workers + 1)}
+        rates["engine" if backend == "local" else backend] = {w: rate for w, (rate, _) in measured.items()}
+        if backend == "local":
+            rates["peak_rss_mb"] = max(peak for _, peak in measured.values())
     results = Path(__file__).parent / "results"
     (results / "engine_throughput.json").write_text(json.dumps(rates, indent=2) + "\n")
     plot(rates, results / "engine_throughput.png")
