@@ -102,10 +102,26 @@ def summary_rows(rows: list[dict]) -> dict:
     if golden:
         out["fresh"]["mean_heldout"] = float(np.mean([r["best"]["success_rate"] for r in golden]))
         out["fresh"]["mean_fresh"] = float(np.mean([r["fresh"]["success_rate"] for r in golden]))
+    out["base_floor"] = [base_floor(rows, bar) for bar in (0.9, 0.97)]
     weak = [r for r in rows if r["base"]["success_rate"] <= WEAK_BASE]
     out["targets"] = {"pairs": len(weak), "judged": targets(weak, lambda r: r | {"p_value": r["p_vs_base"]}),
                       "fresh": targets(weak, lambda r: r["fresh"] | {"best": r["fresh"]})}
     return out
+
+
+def base_floor(rows: list[dict], bar: float, share: float = 0.9) -> dict | None:
+    """The lowest base success T such that, among the pairs whose base is >= T' for every T' >= T,
+    at least `share` reach `bar` with their best ticket (the paper's base floor T*); with the
+    number of those pairs (n) and of those reaching the bar (k). None if no floor qualifies."""
+    floors = sorted({r["base"]["success_rate"] for r in rows}, reverse=True)
+    found = None
+    for floor in floors:
+        above = [r for r in rows if r["base"]["success_rate"] >= floor]
+        k = sum(r["best"]["success_rate"] >= bar for r in above)
+        if k < share * len(above):
+            break
+        found = {"bar": bar, "floor": floor, "n": len(above), "k": k}
+    return found
 
 
 def targets(rows: list[dict], arms) -> dict:
@@ -115,7 +131,9 @@ def targets(rows: list[dict], arms) -> dict:
     reduction = [failure_reduction(a["best"], a["base"]) for a in picked]
     return {"vs_base": sum(a["p_value"] < 0.05 for a in picked) / len(picked),
             "vs_zero": sum(a["p_vs_zero"] < 0.05 for a in picked) / len(picked),
-            "failure_reduction": float(np.mean(reduction))}
+            "failure_reduction": float(np.mean(reduction)),
+            "mean_gain": float(np.mean([a["best"]["success_rate"] - a["base"]["success_rate"]
+                                        for a in picked]))}
 
 
 def failure_reduction(best: dict, base: dict) -> float:
@@ -151,9 +169,15 @@ def markdown(rows: list[dict], summary: dict, wall: float) -> str:
     for seeds in ("judged", "fresh"):
         lines.append(f"- **The generalisation targets** on the {t['pairs']} pairs with base <= "
                      f"{WEAK_BASE:.0%}, {seeds} seeds: significant gain over the base in "
-                     f"{t[seeds]['vs_base']:.0%} (target "
-                     f">= 80%), over the zero ticket in {t[seeds]['vs_zero']:.0%} (>= 60%); mean failure "
-                     f"reduction {t[seeds]['failure_reduction']:.1%} (>= 45%).")
+                     f"{t[seeds]['vs_base']:.0%} (target >= 90%), over the zero ticket in "
+                     f"{t[seeds]['vs_zero']:.0%}; mean failure reduction {t[seeds]['failure_reduction']:.1%} "
+                     f"(>= 55%); mean gain {100 * t[seeds]['mean_gain']:+.1f} points (>= +18).")
+    for floor in summary["base_floor"]:
+        if floor:
+            lines.append(f"- **Base floor** for the bar {floor['bar']:.0%} (the paper's T*): "
+                         f"{floor['floor']:.1%}. Of the {floor['n']} pairs whose base succeeds at least that "
+                         f"often, {floor['k']} reach {floor['bar']:.0%} with their best ticket; at every "
+                         "higher floor, at least 90% do.")
     lines.append(f"- Best ticket: the best on held-out seeds of the search's top {SETTINGS['top_k']}; its "
                  "p-values are Holm-adjusted for that choice, but the counts and mean gains above use "
                  "its held-out rate, which that choice makes optimistic. The fresh-seed column is the "
@@ -167,7 +191,7 @@ def markdown(rows: list[dict], summary: dict, wall: float) -> str:
 
 def figure(rows: list[dict]):
     """Per pair, on the fresh seeds: base, zero ticket and best ticket (left); for the pairs with a
-    weak base, the failure reduction against the 45% target (right)."""
+    weak base, the failure reduction against the 55% target (right)."""
     from matplotlib.figure import Figure
 
     rows = sorted(rows, key=lambda r: r["base"]["success_rate"])
@@ -191,7 +215,7 @@ def figure(rows: list[dict]):
     cut = [failure_reduction(r["fresh"], r["fresh"]["base"]) for r in weak]
     colors = ["goldenrod" if r["fresh"]["p_value"] < 0.05 else "0.6" for r in weak]
     right.barh(np.arange(len(weak)), cut, color=colors)
-    right.axvline(0.45, color="tab:red", ls="--", label="target 45%")
+    right.axvline(0.55, color="tab:red", ls="--", label="target 55%")
     right.axvline(float(np.mean(cut)), color="k", label=f"mean {np.mean(cut):.0%}")
     right.set_yticks(np.arange(len(weak)), [labels[rows.index(r)] for r in weak], fontsize="small")
     right.set(xlabel="failure reduction over the base (fresh seeds)",
@@ -203,6 +227,18 @@ def figure(rows: list[dict]):
 
 def save_figure(rows: list[dict], path: Path) -> None:
     figure(rows).savefig(path, dpi=90)
+
+
+def keep_best_tickets(summaries: list[dict], folder: Path) -> None:
+    """Every pair's best ticket, golden or not (its metadata says), with its fresh check, in
+    `folder/<policy>/`: anyone can judge all pairs again on other seeds."""
+    for old in folder.rglob("*.safetensors"):
+        old.unlink()
+    for s in summaries:
+        ticket = Ticket.load(s["best"]["ticket_path"])
+        ticket.metadata["fresh"] = s["best"]["fresh"]
+        ticket.save(folder / s["policy"].removeprefix("metaworld/").replace("/", "_").replace("@", "_at")
+                    / f"{ticket.id}.safetensors")
 
 
 def ship(summaries: list[dict]) -> int:
@@ -247,6 +283,7 @@ def main() -> None:
         return
     record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
               "wall_time_s": round(wall)}
+    keep_best_tickets(summaries, RESULTS / "existence_tickets")
     write_results("existence", record, markdown(rows, summary, wall), lambda path: save_figure(rows, path))
     if args.ship:
         print(f"Shipped {ship(summaries)} golden tickets into {BUNDLED_DIR}.")

@@ -40,6 +40,16 @@ class BiasedController:
         return np.clip(heading[:, None, :] + noise, -1, 1)[:, : self.n_exec]
 
 
+class ExactController(BiasedController):
+    """Heads straight for the goal: any noise only perturbs it (the zero ticket is best)."""
+
+    name = "exact-controller"
+
+    def act(self, obs, noise):
+        heading = 5 * (obs["goal"] - obs["pos"])
+        return np.clip(heading[:, None, :] + 2 * noise, -1, 1)[:, : self.n_exec]
+
+
 class Unseeded(PointReach):
     def reset(self, seed=None, options=None):
         super().reset(seed=None)
@@ -134,6 +144,10 @@ def make_env():
 
 def make_policy():
     return BiasedController()
+
+
+def make_exact_policy():
+    return ExactController()
 
 
 def make_unseeded_env():

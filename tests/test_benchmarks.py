@@ -32,10 +32,21 @@ def test_existence_summary_counts_gains_sign_test_and_targets():
     table = existence.markdown(rows, s, 60.0)
     assert table.count("\n| t | flow |") == 4 and "**golden**" in table and "2 of 4 pairs" in table
     expected = {"vs_base": 0.5, "vs_zero": 0.25,
-                "failure_reduction": pytest.approx(np.mean([0.2 / 0.5, 0, -0.05 / 0.4, 0.1 / 0.7]))}
+                "failure_reduction": pytest.approx(np.mean([0.2 / 0.5, 0, -0.05 / 0.4, 0.1 / 0.7])),
+                "mean_gain": pytest.approx(np.mean([0.2, 0, -0.05, 0.1]))}
     assert s["targets"] == {"pairs": 4, "judged": expected, "fresh": expected}
     strong = existence.summary_rows([*rows, _row(0.9, 0.9, 1.0, 0.001, 0.001)])["targets"]
     assert strong["pairs"] == 4 and strong["judged"] == expected  # a base above 85% is not a target pair
+
+
+def test_base_floor_is_the_lowest_base_above_which_nine_in_ten_pairs_reach_the_bar():
+    rows = [_row(b, b, best, 0.01, 0.5) for b, best in
+            [(0.95, 1.0), (0.9, 0.97), (0.8, 0.95), (0.7, 0.92), (0.6, 0.5), (0.5, 0.95)]]
+    assert existence.base_floor(rows, 0.9) == {"bar": 0.9, "floor": 0.7, "n": 4, "k": 4}
+    assert existence.base_floor(rows, 0.97) == {"bar": 0.97, "floor": 0.9, "n": 2, "k": 2}
+    assert existence.base_floor(rows, 1.01) is None
+    table = existence.markdown(rows, existence.summary_rows(rows), 60.0)
+    assert "**Base floor** for the bar 90% (the paper's T*): 70.0%. Of the 4 pairs" in table
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():

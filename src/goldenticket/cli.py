@@ -135,8 +135,8 @@ def _transfer_parser(sub) -> None:
     _out_arg(tr)
 
 
-TRANSFER_SKIPS = ("top_k", "objective", "front_objective", "stop_after_perfect", "max_tickets", "success",
-                  "subspace", "no_regression", "max_nonfinite")
+TRANSFER_SKIPS = ("tickets", "top_k", "objective", "front_objective", "stop_after_perfect", "max_tickets",
+                  "success", "subspace", "no_regression", "max_nonfinite")
 
 
 def _search_parser(sub) -> None:

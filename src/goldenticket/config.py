@@ -111,13 +111,17 @@ class SearchConfig(EngineOptions):
     front_objective: str | None = option(None, "a second objective: also find the Pareto front between "
                                          "the two (front.json, front.png)", choices=OBJECTIVE_NAMES)
     validation_seeds: int | None = option(None, "run the 3 x top_k best search tickets on this many "
-                                          "validation states and judge the top_k of those on held-out "
-                                          "states (default: 100 for one task, 0 for several; 0: judge the "
-                                          "search's top_k)")
+                                          "validation states, with the zero ticket and any ticket given, "
+                                          "and judge the top_k of those on held-out states (default: 100 "
+                                          "for one task, 0 for several; 0: judge the search's top_k)")
     no_regression: bool = option(False, "several tasks: never pick a ticket significantly worse than the "
                                  "base on a task", action="store_true")
+    tickets: tuple = option((), "a ticket file or bundled ticket id to validate beside the search's best "
+                            "and the zero ticket (e.g. from another task or an earlier run); repeat for "
+                            "several", action="append", flag="--ticket")
 
     def __post_init__(self):
+        object.__setattr__(self, "tickets", tuple(map(str, self.tickets)))
         if isinstance(self.task, list):
             object.__setattr__(self, "task", self.task[0] if len(self.task) == 1 else tuple(self.task))
         if self.stop_after_perfect == 0:

@@ -26,11 +26,12 @@ def verdict_text(rows: dict[str, dict], best: dict, note: str) -> str:
     """The verdict table (rows from `workflow.arm_rows`), a one-line plain verdict on the best
     ticket, and how to read the p-values (and the non-finite column, when shown)."""
     base = rows["base"]["success_rate"]
+    name = best["ticket_id"] + (" (the zero ticket, w = 0)" if best.get("source") == "zero ticket" else "")
     if best["golden"]:
-        line = (f"Golden ticket {best['ticket_id']}: {best['success_rate']:.1%} vs base {base:.1%} on "
+        line = (f"Golden ticket {name}: {best['success_rate']:.1%} vs base {base:.1%} on "
                 f"{best['n']} held-out seeds (p = {best['p_value']:.3g})")
     else:
-        line = (f"No golden ticket: the best ticket ({best['ticket_id']}, {best['success_rate']:.1%}) "
+        line = (f"No golden ticket: the best ticket ({name}, {best['success_rate']:.1%}) "
                 f"is not significantly better than the base ({base:.1%}); p = {best['p_value']:.3g} >= 0.05")
     if any(r.get("nonfinite_episodes") for r in rows.values()):
         note += (" non-finite: episodes the policy ended with a NaN or infinite action, counted as "

@@ -24,7 +24,7 @@ from goldenticket.evaluation import (
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.plots import arms_png, search_png, tasks_png
-from goldenticket.policies import NoisePolicy, for_task, identity, load_policy, policy_label
+from goldenticket.policies import NoisePolicy, find_ticket, for_task, identity, load_policy, policy_label
 from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
@@ -55,6 +55,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
     expand = functools.partial(Subspace.parse(cfg.subspace, policy.noise_shape).expand,
                                noise_shape=policy.noise_shape)
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
+    others = _other_candidates(cfg, names, policy.noise_shape, task_names)
 
     def where(key: int) -> tuple[str, int]:
         return task_names[key % len(tasks)], search_seeds[key // len(tasks)]
@@ -74,7 +75,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
             bar.total = result.episodes_used
         top = _top(result, cfg, len(keys))
         candidates = [_ticket(cfg, names, result, c, search_seeds, expand, task_names) for c in top]
-        tickets = _select(cfg, evaluator, candidates, validation, task_names)
+        tickets = _select(cfg, evaluator, candidates + (others if validation else []), validation, task_names)
         sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2) * len(tasks), "held-out: top tickets"):
             per_task = {name: judge(evaluator, sources, heldout, base, name) for name in task_names}
@@ -88,7 +89,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
         if front:
             summary["front"] = [label for label in front["heldout"] if label not in ("base", "zero")]
     write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    order = {id(c): i for i, c in enumerate(result.candidates)}  # a ticket's place in the search
+    order = {id(c): i for i, c in enumerate(result.candidates)}  # a search ticket's place in the search
     place = {ticket.id: order[id(c)] for ticket, c in zip(candidates, top, strict=True)}
     base_return = float(np.mean([r.ret for judged in per_task.values() for r in judged["base"].results]))
     _pictures(cfg, names, summary, result, place, bool(validation), base_return, out)
@@ -129,7 +130,8 @@ def _pictures(cfg: SearchConfig, names: Names, summary: dict, result: SearchResu
     span = summary["heldout_seeds"]
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
                out / "search.png", f"{cfg.method} search: {title}",
-               validated=list(place.values()) if validated else [], judged=[place[t] for t in judged],
+               validated=list(place.values()) if validated else [],
+               judged=[place[t] for t in judged if t in place],
                base=(base_return, f"held-out seeds {span[0]}..{span[1]}"))
 
 
@@ -257,19 +259,33 @@ def query_evaluator(evaluator: Evaluator, fingerprint: str, expand: Callable = l
     return evaluate
 
 
+def _other_candidates(cfg: SearchConfig, names: Names, shape: tuple[int, int],
+                      tasks: list[str]) -> list[Ticket]:
+    """Tickets that enter validation beside the search's best: the zero ticket and the tickets
+    `cfg.tickets` names (files or bundled ids; any policy's or task's, if the shape fits)."""
+    sources = {"zero ticket": zero_ticket(shape).noise} | {
+        f"given: {ref}": Ticket.load(find_ticket(ref), expected_shape=shape).noise for ref in cfg.tickets}
+    tickets = [Ticket(noise, _provenance(names, shape, tasks, {"source": source, "search_score": None}))
+               for source, noise in sources.items()]
+    return list({t.id: t for t in tickets}.values())  # a given ticket may be the zero ticket
+
+
 def _ticket(cfg: SearchConfig, names: Names, result: SearchResult, candidate,
             search_seeds: list[int], expand: Callable, tasks: list[str]) -> Ticket:
     noise = expand(candidate.ticket)
-    limit = {} if names.max_steps is None else {"max_steps": names.max_steps}
-    several = {"tasks": tasks} if len(tasks) > 1 else {}
-    return Ticket(noise, limit | {"success": names.success} | {
-        "policy": names.policy, "policy_fingerprint": names.fingerprint,
-        "noise_shape": list(noise.shape), "task": names.task, "method": cfg.method,
-        "subspace": cfg.subspace, "searched_shape": list(candidate.ticket.shape),
+    return Ticket(noise, _provenance(names, noise.shape, tasks, {
+        "method": cfg.method, "subspace": cfg.subspace, "searched_shape": list(candidate.ticket.shape),
         "budget": cfg.budget, "episodes_used": result.episodes_used, "seed": cfg.seed,
         "objective": cfg.objective, "search_seeds": [search_seeds[0], search_seeds[-1]],
-        "search_score": candidate.mean_return, "search_episodes": candidate.n,
-    } | several)
+        "search_score": candidate.mean_return, "search_episodes": candidate.n}))
+
+
+def _provenance(names: Names, shape: tuple[int, int], tasks: list[str], how: dict) -> dict:
+    """A candidate ticket's metadata: what it is for and under which settings, then `how` it came."""
+    limit = {} if names.max_steps is None else {"max_steps": names.max_steps}
+    several = {"tasks": tasks} if len(tasks) > 1 else {}
+    return limit | {"success": names.success, "policy": names.policy, "policy_fingerprint": names.fingerprint,
+                    "noise_shape": list(shape), "task": names.task} | how | several
 
 
 def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, span: list[int],
@@ -283,7 +299,7 @@ def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, sp
         if t.id in fronts:
             t.metadata["front"] = fronts[t.id]
         path = t.save(out / "tickets" / f"{t.id}.safetensors")
-        validation = {k: t.metadata[k] for k in ("validation_score",) if k in t.metadata}
+        validation = {k: t.metadata[k] for k in ("validation_score", "source") if k in t.metadata}
         entries.append(judged[t.id].to_dict() | validation | {"ticket_id": t.id, "ticket_path": str(path),
                                                               "search_score": t.metadata["search_score"]})
     return entries

@@ -1,0 +1,52 @@
+"""The zero ticket and tickets a user gives are candidates beside the search's best."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import goldenticket
+from goldenticket.cli import main
+from goldenticket.store import RunStore
+from goldenticket.tickets import Ticket, zero_ticket
+
+HERE = Path(__file__).parent
+EXACT = ["--policy", "byo_example:make_exact_policy", "--task", "byo_example:make_env"]
+SMALL = ["--method", "rs", "--budget", "40", "--search-seeds", "4", "--heldout", "30", "--top-k", "1",
+         "--validation-seeds", "10", "--workers", "1", "--max-steps", "40"]
+
+
+@pytest.fixture(autouse=True)
+def _byo(monkeypatch):
+    monkeypatch.syspath_prepend(str(HERE))
+
+
+def test_where_any_noise_hurts_the_zero_ticket_is_delivered(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["search", *EXACT, *SMALL, "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    best = summary["best"]
+    assert best["source"] == "zero ticket" and best["success_rate"] == summary["zero"]["success_rate"]
+    assert best["success_rate"] > summary["base"]["success_rate"]
+    assert "(the zero ticket, w = 0)" in said
+    delivered = Ticket.load(best["ticket_path"])
+    assert not delivered.noise.any() and delivered.metadata["source"] == "zero ticket"
+    assert delivered.id == Ticket(zero_ticket((4, 2)).noise, {"policy_fingerprint": delivered.metadata[
+        "policy_fingerprint"]}).id
+
+
+def test_a_given_ticket_is_validated_beside_the_search(tmp_path):
+    given = Ticket(np.full((4, 2), 0.01, np.float32)).save(tmp_path / "earlier.safetensors")
+    summary = goldenticket.search("byo_example:make_exact_policy", "byo_example:make_env", tmp_path / "run",
+                                  method="rs", budget=40, search_seeds=4, heldout=30, top_k=2,
+                                  validation_seeds=10, workers=1, max_steps=40, tickets=[str(given)])
+    with RunStore(tmp_path / "run" / "run.sqlite") as store:
+        rows = store.episodes(seed_set="validation")
+    scores = {t: np.mean([r.ret for r in rows if r.ticket_id == t]) for t in {r.ticket_id for r in rows}}
+    judged = {t["ticket_id"] for t in summary["tickets"]}
+    assert len(scores) == 3 * 2 + 2  # the search's 3 x top-k, the zero ticket and the given one
+    fingerprint = Ticket.load(summary["best"]["ticket_path"]).metadata["policy_fingerprint"]
+    assert Ticket(Ticket.load(given).noise, {"policy_fingerprint": fingerprint}).id in scores
+    assert min(scores[t] for t in judged) >= max(scores[t] for t in set(scores) - judged)
