@@ -37,6 +37,7 @@ def test_where_any_noise_hurts_the_zero_ticket_is_delivered(tmp_path, capsys):
         "policy_fingerprint"]}).id
 
 
+@pytest.mark.slow
 def test_a_given_ticket_is_validated_beside_the_search(tmp_path):
     given = Ticket(np.full((4, 2), 0.01, np.float32)).save(tmp_path / "earlier.safetensors")
     summary = goldenticket.search("byo_example:make_exact_policy", "byo_example:make_env", tmp_path / "run",
