@@ -10,13 +10,12 @@ import goldenticket
 from goldenticket.cli import _parser, main
 from goldenticket.config import (
     EvaluateConfig,
-    OptionError,
     SearchConfig,
     cli_fields,
-    flag,
     read_toml,
     to_toml,
 )
+from goldenticket.errors import OptionError, flag
 
 HERE = Path(__file__).parent
 BYO = ["--policy", "byo_example:make_policy", "--task", "byo_example:make_env"]

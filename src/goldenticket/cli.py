@@ -17,15 +17,13 @@ from goldenticket.config import (
     TASK_HELP,
     EngineOptions,
     EvaluateConfig,
-    OptionError,
     SearchConfig,
     cli_fields,
-    flag,
     make,
     read_toml,
     seed_range,
 )
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError, flag
 
 DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
 RESUME = dict.fromkeys(("demo", "search", "transfer"),

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import copy
 import json
-import re
 import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import MISSING, dataclass, field, fields
@@ -18,31 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 from goldenticket.factories import import_name
 from goldenticket.ticket_search.optimizers import OPTIMIZERS
 
 MAX_NONFINITE = 0.1  # default: stop once more than this fraction of an arm's held-out episodes is non-finite
 OBJECTIVE_NAMES = ("success", "success-progress", "discounted-success", "length", "speed")
-
-
-class OptionError(UserError):
-    """A bad option: the message names options by their field (`search_seeds`); `as_flags` names
-    them as the command line spells them (`--search-seeds`)."""
-
-    def __init__(self, message: str, *names: str):
-        super().__init__(message)
-        self.names = names
-
-    def as_flags(self) -> str:
-        text = str(self)
-        for name in self.names:
-            text = re.sub(rf"(?<![\w-]){name}(?![\w-])", flag(name), text)
-        return text
-
-
-def flag(name: str) -> str:
-    return "--" + name.replace("_", "-")
 
 
 def option(default=MISSING, help: str = "", **cli) -> field:

@@ -6,8 +6,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
-from goldenticket.config import MAX_NONFINITE, OptionError, check_max_nonfinite
-from goldenticket.errors import UserError
+from goldenticket.config import MAX_NONFINITE, check_max_nonfinite
+from goldenticket.errors import OptionError, UserError
 from goldenticket.noise import Gaussian, NoiseSource
 from goldenticket.rollout import NONFINITE, Engine, Episode, EpisodeResult
 from goldenticket.stats import Rate, holm_adjust, paired_exact_test

@@ -9,8 +9,7 @@ import logging
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 
-from goldenticket.config import OptionError
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 
 RETRIES = 3  # new actors per shard before giving up
 

@@ -13,8 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from goldenticket.config import OptionError
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 from goldenticket.factories import call_users, picklable
 from goldenticket.noise import NoiseSource
 from goldenticket.policies import NoisePolicy, for_task, load_policy, policy_label

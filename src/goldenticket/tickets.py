@@ -13,8 +13,7 @@ import numpy as np
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import save
 
-from goldenticket.config import OptionError
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 from goldenticket.files import write_atomic
 
 _TENSOR = "noise"

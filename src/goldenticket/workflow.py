@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from goldenticket.config import EvaluateConfig, OptionError, SearchConfig, named, to_toml
-from goldenticket.errors import UserError
+from goldenticket.config import EvaluateConfig, SearchConfig, named, to_toml
+from goldenticket.errors import OptionError, UserError
 from goldenticket.evaluation import (
     Evaluator,
     Judged,

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from goldenticket.config import OptionError
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 from goldenticket.factories import is_import_string
 from goldenticket.tasks.gym import GymTask
 from goldenticket.tasks.metaworld import MetaWorldTask, task_names

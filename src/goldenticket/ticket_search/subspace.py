@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from goldenticket.config import OptionError
+from goldenticket.errors import OptionError
 
 
 @dataclass(frozen=True)
