@@ -60,7 +60,7 @@ def fresh_check(path: Path, policy: str, task: str, out: Path, workers: int) -> 
     seeds = seeds_in("heldout", SETTINGS["heldout"] + FRESH)[SETTINGS["heldout"]:]
     cfg = EvaluateConfig(policy, task, (str(path),), seeds, SETTINGS["seed"], workers=workers)
     with RunStore(out / "fresh.sqlite") as store:
-        rows = evaluate_tickets(cfg, [path], store)
+        rows = evaluate_tickets(cfg, store)
     ticket = Ticket.load(path)
     recorded, rate = ticket.metadata["heldout"], rows[ticket.id]["success_rate"]
     return rows[ticket.id] | {

@@ -46,7 +46,7 @@ def mixture(task: str, pareto_summary: dict, workers: int) -> dict:
     paths = [Path(t["ticket_path"]) for t in pareto_summary["tickets"]]
     cfg = EvaluateConfig(f"metaworld/{task}/flow", f"metaworld/{task}", tuple(map(str, paths)), MIXTURE_SEEDS,
                          workers=workers, mixture=True)
-    rows = evaluate_tickets(cfg, paths)
+    rows = evaluate_tickets(cfg)
     best = max((label for label in rows if label not in ("base", "zero", "mixture")),
                key=lambda label: rows[label]["success_rate"])
     return {"base": rows["base"], "best ticket": rows[best] | {"ticket_id": best}, "mixture": rows["mixture"],

@@ -51,3 +51,12 @@ def test_a_given_ticket_is_validated_beside_the_search(tmp_path):
     fingerprint = Ticket.load(summary["best"]["ticket_path"]).metadata["policy_fingerprint"]
     assert Ticket(Ticket.load(given).noise, {"policy_fingerprint": fingerprint}).id in scores
     assert min(scores[t] for t in judged) >= max(scores[t] for t in set(scores) - judged)
+
+
+def test_given_tickets_need_validation_seeds(tmp_path, capsys):
+    given = str(Ticket(np.zeros((4, 2), np.float32)).save(tmp_path / "t.safetensors"))
+    options = [a if a != "10" else "0" for a in SMALL]  # --validation-seeds 0
+    assert main(["search", *EXACT, *options, "--ticket", given, "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err == ("goldenticket: error: --ticket: a given ticket runs on the validation "
+                                       "seeds beside the search's best, so it needs --validation-seeds > 0\n")
+    assert not (tmp_path / "o").exists()

@@ -48,4 +48,4 @@ def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
     seeds = seeds if isinstance(seeds, range) else list(seeds)
     cfg = make(EvaluateConfig, {"policy": policy, "task": task, "tickets": tuple(map(str, tickets)),
                                 "seeds": seeds} | options)
-    return evaluate_tickets(cfg, [Path(t) for t in tickets])
+    return evaluate_tickets(cfg)

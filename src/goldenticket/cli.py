@@ -22,6 +22,7 @@ from goldenticket.config import (
     make,
     read_toml,
     seed_range,
+    spelled_flags,
 )
 from goldenticket.errors import OptionError, UserError, flag
 
@@ -258,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         if args.verbose:
             traceback.print_exception(exc)
-        return _fail(exc.as_flags() if isinstance(exc, OptionError) else str(exc))
+        return _fail(exc.as_flags(spelled_flags()) if isinstance(exc, OptionError) else str(exc))
     except BrokenPipeError:  # `goldenticket tickets list | head`: the reader has gone; say nothing
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
@@ -348,7 +349,7 @@ def _evaluate(args) -> int:
         check_target(args.plot)
         if not args.plot.parent.is_dir() or not os.access(args.plot.parent, os.W_OK):
             raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
-    rows = evaluate_tickets(cfg, paths)
+    rows = evaluate_tickets(cfg)
     tickets = [r | {"ticket_id": label} for label, r in rows.items()
                if label not in ("base", "zero", "mixture")]
     arms = arm_rows(rows["base"], rows["zero"], tickets)

@@ -130,6 +130,9 @@ class SearchConfig(EngineOptions):
                                   f"{list(OBJECTIVE_NAMES)}", name)
         if self.method not in OPTIMIZERS:
             raise OptionError(f"unknown method {self.method!r}; choose from {list(OPTIMIZERS)}", "method")
+        if self.tickets and not self.validation():
+            raise OptionError("tickets: a given ticket runs on the validation seeds beside the search's "
+                              "best, so it needs validation_seeds > 0", "tickets", "validation_seeds")
         self._check_tasks()
         self._check_front()
 
@@ -272,6 +275,12 @@ def _toml_value(value) -> str:
 def named(obj) -> str | None:
     """A user's object as files record it: a string as it is, else its import string."""
     return obj if obj is None or isinstance(obj, str) else import_name(obj)
+
+
+def spelled_flags() -> dict[str, str]:
+    """The fields whose flag is not the generated one (`tickets` -> `--ticket`)."""
+    return {f.name: f.metadata["cli"]["flag"] for cls in (SearchConfig, EvaluateConfig) for f in fields(cls)
+            if "flag" in (f.metadata.get("cli") or {})}
 
 
 def cli_fields(cls, skip: Sequence[str] = ()) -> list:

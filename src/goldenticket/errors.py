@@ -16,10 +16,11 @@ class OptionError(UserError):
         super().__init__(message)
         self.names = names
 
-    def as_flags(self) -> str:
+    def as_flags(self, spelled: dict[str, str] | None = None) -> str:
+        """The message with each option named by its flag (`spelled`: flags not made by `flag`)."""
         text = str(self)
         for name in self.names:
-            text = re.sub(rf"(?<![\w-]){name}(?![\w-])", flag(name), text)
+            text = re.sub(rf"(?<![\w-]){name}(?![\w-])", (spelled or {}).get(name, flag(name)), text)
         return text
 
 

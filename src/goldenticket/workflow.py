@@ -336,8 +336,7 @@ def _multitask_summary(cfg: SearchConfig, names: Names, per_task: dict[str, dict
                       "heldout_seeds": span, "p_value_note": p_value_note(len(tickets))}
 
 
-def evaluate_tickets(cfg: EvaluateConfig, ticket_paths: list[Path],
-                     store: RunStore | None = None) -> dict[str, dict]:
+def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict[str, dict]:
     """Base, zero ticket and each ticket on the held-out `cfg.seeds`: one-sided paired p-values vs
     base and vs zero, Holm-adjusted over the tickets; episodes kept in `store` if given. The task,
     `max_steps` and `success` default to those the tickets were found under; a ticket found for
@@ -349,7 +348,8 @@ def evaluate_tickets(cfg: EvaluateConfig, ticket_paths: list[Path],
     seeds = list(cfg.seeds)
     require_heldout(seeds)
     policy = load_policy(cfg.policy)
-    loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape) for path in ticket_paths}
+    loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape)
+              for path in map(find_ticket, cfg.tickets)}
     given = {"task": cfg.task, "max_steps": cfg.max_steps, "success": cfg.success}
     settings = found_under(list(loaded.values()), given, cfg.allow_transfer)
     task = get_task(settings["task"], settings["max_steps"], settings["success"])
