@@ -19,15 +19,15 @@ import numpy as np
 
 from goldenticket.errors import OptionError, UserError
 from goldenticket.factories import import_name
+from goldenticket.tasks.base import FRONT_OBJECTIVES, OBJECTIVES
 from goldenticket.ticket_search.optimizers import OPTIMIZERS
 
 MAX_NONFINITE = 0.1  # default: stop once more than this fraction of an arm's held-out episodes is non-finite
-OBJECTIVE_NAMES = ("success", "success-progress", "discounted-success", "length", "speed")
 
 
 def option(default=MISSING, help: str = "", **cli) -> field:
     """A config field; `cli` holds how the command line spells it beyond the generated flag
-    (choices, action, metavar, a command-line-only default), or cli=False for API-only fields."""
+    (choices, action, its own flag, required there)."""
     return field(default=default, metadata={"help": help, "cli": cli})
 
 
@@ -79,7 +79,7 @@ class SearchConfig(EngineOptions):
     top_k: int = option(3, "best search tickets judged on held-out states")
     objective: str = option("success", "episode return the search maximises; speed: short successful "
                             "episodes; success-progress: success, ties broken by how far failed episodes "
-                            "got (Meta-World's shaped reward at their end)", choices=OBJECTIVE_NAMES)
+                            "got (Meta-World's shaped reward at their end)", choices=tuple(OBJECTIVES))
     stop_after_perfect: int | None = option(3, "stop once this many tickets succeed on every search seed "
                                             "(0 or None: never)")
     max_tickets: int | None = option(None, "stop after this many distinct tickets (default: no cap)")
@@ -89,7 +89,7 @@ class SearchConfig(EngineOptions):
                            "vector repeated over the horizon), channels:I,J (those action channels; the "
                            "others 0)")
     front_objective: str | None = option(None, "a second objective: also find the Pareto front between "
-                                         "the two (front.json, front.png)", choices=OBJECTIVE_NAMES)
+                                         "the two (front.json, front.png)", choices=tuple(OBJECTIVES))
     validation_seeds: int | None = option(None, "run the 3 x top_k best search tickets on this many "
                                           "validation states, with the zero ticket and any ticket given, "
                                           "and judge the top_k of those on held-out states (default: 100 "
@@ -125,9 +125,9 @@ class SearchConfig(EngineOptions):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise OptionError(f"{name} must be > 0, got {getattr(self, name)}", name)
         for name in ("objective", "front_objective"):
-            if getattr(self, name) not in (*OBJECTIVE_NAMES, None):
+            if getattr(self, name) not in (*OBJECTIVES, None):
                 raise OptionError(f"unknown {name} {getattr(self, name)!r}; choose from "
-                                  f"{list(OBJECTIVE_NAMES)}", name)
+                                  f"{list(OBJECTIVES)}", name)
         if self.method not in OPTIMIZERS:
             raise OptionError(f"unknown method {self.method!r}; choose from {list(OPTIMIZERS)}", "method")
         if self.tickets and not self.validation():
@@ -146,8 +146,6 @@ class SearchConfig(EngineOptions):
                               "no_regression", "task")
 
     def _check_front(self) -> None:
-        from goldenticket.tasks.base import FRONT_OBJECTIVES
-
         if not self.front_objective:
             return
         if self.front_objective == self.objective:
@@ -280,11 +278,11 @@ def named(obj) -> str | None:
 def spelled_flags() -> dict[str, str]:
     """The fields whose flag is not the generated one (`tickets` -> `--ticket`)."""
     return {f.name: f.metadata["cli"]["flag"] for cls in (SearchConfig, EvaluateConfig) for f in fields(cls)
-            if "flag" in (f.metadata.get("cli") or {})}
+            if "flag" in f.metadata["cli"]}
 
 
 def cli_fields(cls, skip: Sequence[str] = ()) -> list:
-    """The fields the command line spells as flags: the run's own, then where episodes run."""
+    """The fields as the command line lists them: the run's own, then where episodes run."""
     engine = {f.name for f in fields(EngineOptions)}
-    chosen = [f for f in fields(cls) if f.metadata.get("cli") is not False and f.name not in skip]
+    chosen = [f for f in fields(cls) if f.name not in skip]
     return sorted(chosen, key=lambda f: f.name in engine)
