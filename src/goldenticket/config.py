@@ -124,8 +124,8 @@ class SearchConfig(EngineOptions):
         for name in ("budget", "search_seeds", "heldout", "top_k", "max_tickets", "max_steps"):
             if getattr(self, name) is not None and getattr(self, name) <= 0:
                 raise OptionError(f"{name} must be > 0, got {getattr(self, name)}", name)
-        for name in ("objective", "front_objective"):
-            if getattr(self, name) not in (*OBJECTIVES, None):
+        for name, allowed in (("objective", OBJECTIVES), ("front_objective", (*OBJECTIVES, None))):
+            if getattr(self, name) not in allowed:
                 raise OptionError(f"unknown {name} {getattr(self, name)!r}; choose from "
                                   f"{list(OBJECTIVES)}", name)
         if self.method not in OPTIMIZERS:
