@@ -104,7 +104,8 @@ class _Once(argparse.Action):
 
 
 def _help(f, required: bool) -> str:
-    unsaid = required or f.default in (None, False, ()) or "default" in f.metadata["help"]
+    unsaid = required or any(f.default is v for v in (None, False)) or f.default == () \
+        or "default" in f.metadata["help"]
     return f.metadata["help"] + ("" if unsaid else f" (default: {f.default})")
 
 

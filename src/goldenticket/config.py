@@ -98,7 +98,7 @@ class SearchConfig(EngineOptions):
                                  "base on a task", action="store_true")
     tickets: tuple = option((), "a ticket file or bundled ticket id to validate beside the search's best "
                             "and the zero ticket (e.g. from another task or an earlier run); repeat for "
-                            "several", action="append", flag="--ticket")
+                            "several", action="append", flag="--ticket", metavar="TICKET")
 
     def __post_init__(self):
         object.__setattr__(self, "tickets", tuple(map(str, self.tickets)))
@@ -183,7 +183,8 @@ class EvaluateConfig(EngineOptions):
     policy: str | object = option(help=POLICY_HELP, required=True)
     task: str | Callable | None = option(None, TASK_HELP + " (default: the task the tickets were found on)")
     tickets: tuple = option((), "ticket file or bundled ticket id; repeat for several; without it, only the "
-                            "base and the zero ticket run", action="append", flag="--ticket")
+                            "base and the zero ticket run", action="append", flag="--ticket",
+                            metavar="TICKET")
     seeds: Sequence[int] = option(range(1_000_000, 1_000_200), "held-out seed range A:B, A included, B "
                                   "not (seeds 1000000:2000000 name held-out states)", required=True,
                                   seed_range=True)
