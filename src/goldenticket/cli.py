@@ -24,7 +24,7 @@ from goldenticket.config import (
     seed_range,
     spelled_flags,
 )
-from goldenticket.errors import OptionError, UserError, flag
+from goldenticket.errors import OptionError, UserError, flag, flags_in
 
 DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
 RESUME = dict.fromkeys(("demo", "search", "transfer"),
@@ -86,7 +86,9 @@ def _config_flags(p: argparse.ArgumentParser, cls, skip: tuple[str, ...] = (),
     for f in cli_fields(cls, skip):
         cli = dict(f.metadata["cli"])
         name, required = cli.pop("flag", flag(f.name)), cli.pop("required", False)
-        kwargs = {"dest": f.name, "default": argparse.SUPPRESS, "help": _help(f, required)}
+        named = [g.name for g in cli_fields(cls) if "_" in g.name]  # plain words stay words in help
+        kwargs = {"dest": f.name, "default": argparse.SUPPRESS,
+                  "help": flags_in(_help(f, required), named, spelled_flags())}
         if cli.pop("seed_range", False):
             kwargs["type"] = _seed_range
         if cli.get("action") is None:

@@ -18,10 +18,14 @@ class OptionError(UserError):
 
     def as_flags(self, spelled: dict[str, str] | None = None) -> str:
         """The message with each option named by its flag (`spelled`: flags not made by `flag`)."""
-        text = str(self)
-        for name in self.names:
-            text = re.sub(rf"(?<![\w-]){name}(?![\w-])", (spelled or {}).get(name, flag(name)), text)
-        return text
+        return flags_in(str(self), self.names, spelled)
+
+
+def flags_in(text: str, names, spelled: dict[str, str] | None = None) -> str:
+    """`text` with each of the option `names` written as its flag."""
+    for name in names:
+        text = re.sub(rf"(?<![\w-]){name}(?![\w-])", (spelled or {}).get(name, flag(name)), text)
+    return text
 
 
 def flag(name: str) -> str:
