@@ -100,3 +100,9 @@ def test_evaluate_takes_a_config_file_with_a_seed_range(tmp_path, monkeypatch, c
     assert rows["base"]["n"] == 4
     assert rows == goldenticket.evaluate("byo_example:make_policy", "byo_example:make_env",
                                          seeds=range(1_000_000, 1_000_004), workers=1, max_steps=10)
+
+
+def test_one_ticket_given_alone_is_one_ticket_not_its_characters():
+    assert EvaluateConfig("p", tickets="abc.safetensors").tickets == ("abc.safetensors",)
+    assert SearchConfig("p", "t", tickets=Path("a/b.safetensors")).tickets == ("a/b.safetensors",)
+    assert SearchConfig("p", "t", tickets=["x", Path("y")]).tickets == ("x", "y")

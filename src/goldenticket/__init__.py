@@ -46,6 +46,6 @@ def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
     from goldenticket.workflow import evaluate_tickets
 
     seeds = seeds if isinstance(seeds, range) else list(seeds)
-    cfg = make(EvaluateConfig, {"policy": policy, "task": task, "tickets": tuple(map(str, tickets)),
+    cfg = make(EvaluateConfig, {"policy": policy, "task": task, "tickets": tickets,
                                 "seeds": seeds} | options)
     return evaluate_tickets(cfg)

@@ -101,7 +101,7 @@ class SearchConfig(EngineOptions):
                             "several", action="append", flag="--ticket", metavar="TICKET")
 
     def __post_init__(self):
-        object.__setattr__(self, "tickets", tuple(map(str, self.tickets)))
+        object.__setattr__(self, "tickets", ticket_refs(self.tickets))
         if isinstance(self.task, list):
             object.__setattr__(self, "task", self.task[0] if len(self.task) == 1 else tuple(self.task))
         if self.stop_after_perfect == 0:
@@ -201,7 +201,7 @@ class EvaluateConfig(EngineOptions):
                             "probability")
 
     def __post_init__(self):
-        object.__setattr__(self, "tickets", tuple(self.tickets))
+        object.__setattr__(self, "tickets", ticket_refs(self.tickets))
 
     def check(self) -> None:
         super().check()
@@ -210,6 +210,11 @@ class EvaluateConfig(EngineOptions):
         if not 0 <= self.epsilon <= 1 or (self.epsilon and not self.mixture):
             raise OptionError(f"epsilon must be in [0, 1] and comes with mixture, got {self.epsilon}",
                               "epsilon", "mixture")
+
+
+def ticket_refs(tickets) -> tuple[str, ...]:
+    """Ticket files or ids as strings: one given alone (a str or a Path), or several."""
+    return (str(tickets),) if isinstance(tickets, str | Path) else tuple(map(str, tickets))
 
 
 def make(cls, values: dict):
