@@ -83,12 +83,12 @@ def _config_flags(p: argparse.ArgumentParser, cls, skip: tuple[str, ...] = (),
         p.add_argument("--config", type=Path, default=None,
                        help="a TOML file of options (keys are the options' names with _, e.g. search_seeds); "
                             "flags override it. Every search writes the one it ran with to --out/config.toml")
+    named, spelled = [g.name for g in cli_fields(cls) if "_" in g.name], spelled_flags()  # plain words stay
     for f in cli_fields(cls, skip):
         cli = dict(f.metadata["cli"])
         name, required = cli.pop("flag", flag(f.name)), cli.pop("required", False)
-        named = [g.name for g in cli_fields(cls) if "_" in g.name]  # plain words stay words in help
-        kwargs = {"dest": f.name, "default": argparse.SUPPRESS,
-                  "help": flags_in(_help(f, required), named, spelled_flags())}
+        help_text = flags_in(_help(f, required), named, spelled)
+        kwargs = {"dest": f.name, "default": argparse.SUPPRESS, "help": help_text}
         if cli.pop("seed_range", False):
             kwargs["type"] = _seed_range
         if cli.get("action") is None:

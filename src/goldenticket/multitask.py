@@ -12,6 +12,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.evaluation import ALPHA, Evaluator, Judged, judge
 from goldenticket.files import write_atomic
@@ -24,7 +25,6 @@ from goldenticket.tasks import seeds_in
 from goldenticket.tickets import Ticket, zero_ticket
 from goldenticket.workflow import (
     Names,
-    SearchConfig,
     checked_tasks,
     find_golden_tickets,
     open_store,

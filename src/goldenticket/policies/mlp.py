@@ -92,8 +92,8 @@ class Float64Denoiser:
     """
 
     def __init__(self, model: Denoiser, times: torch.Tensor):
-        net = copy.deepcopy(model.net).double()
-        linears = [m for m in net if isinstance(m, nn.Linear)]
+        """`model`: the float64 copy of the denoiser."""
+        linears = [m for m in model.net if isinstance(m, nn.Linear)]
         first, width = linears[0], model.net[-1].out_features
         n_obs = first.in_features - width - 32
         self.w_obs = first.weight[:, :n_obs].contiguous().T  # transposed views, as nn.Linear uses them
@@ -139,9 +139,9 @@ class MLPPolicy:
             raise UserError(f"DDIM steps must be in 1..{cfg.train_timesteps}, got {cfg.steps}")
         self.cfg = cfg
         self.model = (model or Denoiser(cfg)).eval()
-        self._scale = copy.deepcopy(self.model).double()  # observation and action (de)normalisation
+        self._scale = copy.deepcopy(self.model).double()  # float64: (de)normalisation and the network
         self._times = self._flow_times() if cfg.kind == "flow" else self._ddim_times()
-        self._net = Float64Denoiser(self.model, self._times)
+        self._net = Float64Denoiser(self._scale, self._times)
 
     name = property(lambda self: self.cfg.name)
     n_exec = property(lambda self: self.cfg.n_exec)
