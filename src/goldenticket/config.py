@@ -99,9 +99,13 @@ class SearchConfig(EngineOptions):
     tickets: tuple = option((), "a ticket file or bundled ticket id to validate beside the search's best "
                             "and the zero ticket (e.g. from another task or an earlier run); repeat for "
                             "several", action="append", flag="--ticket", metavar="TICKET")
+    log: tuple = option((), "also log the search to tensorboard (in --out/tensorboard) or wandb (offline, in "
+                        "--out/wandb); repeat or comma-separate for both. --out/log.csv is always written",
+                        action="append", metavar="SINK")
 
     def __post_init__(self):
         object.__setattr__(self, "tickets", ticket_refs(self.tickets))
+        object.__setattr__(self, "log", sink_names(self.log))
         if isinstance(self.task, list):
             object.__setattr__(self, "task", self.task[0] if len(self.task) == 1 else tuple(self.task))
         if self.stop_after_perfect == 0:
@@ -135,6 +139,9 @@ class SearchConfig(EngineOptions):
                               "best, so it needs validation_seeds > 0", "tickets", "validation_seeds")
         self._check_tasks()
         self._check_front()
+        from goldenticket.tracking import require  # imports the sinks' packages, only those asked for
+
+        require(self.log)
 
     def _check_tasks(self) -> None:
         if len(self.tasks) > 1:
@@ -215,6 +222,12 @@ class EvaluateConfig(EngineOptions):
 def ticket_refs(tickets) -> tuple[str, ...]:
     """Ticket files or ids as strings: one given alone (a str or a Path), or several."""
     return (str(tickets),) if isinstance(tickets, str | Path) else tuple(map(str, tickets))
+
+
+def sink_names(value) -> tuple[str, ...]:
+    """`log` as a tuple of sink names, from one name, a comma-separated list or several of them."""
+    items = [value] if isinstance(value, str) else value
+    return tuple(dict.fromkeys(name.strip() for item in items for name in item.split(",") if name.strip()))
 
 
 def make(cls, values: dict):

@@ -34,6 +34,7 @@ from goldenticket.tasks.base import require_heldout, require_unseen
 from goldenticket.ticket_search import EpisodeOutcome, SearchResult, run_search
 from goldenticket.ticket_search.subspace import Subspace
 from goldenticket.tickets import Ticket, zero_ticket
+from goldenticket.tracking import Tracker
 
 
 def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
@@ -62,20 +63,22 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
 
     with Engine(cfg.policy, tasks, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
                 address=cfg.address, loaded=policy) as engine, \
-            open_store(out, cfg, names) as store:
+            open_store(out, cfg, names) as store, Tracker(cfg, out, search_title(cfg, names)) as tracker:
         evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
         with progress_bar(evaluator, 2 * cfg.heldout * len(tasks), "held-out: base and zero ticket"):
             for name in task_names:
                 evaluator.run([("base", base, heldout), ("zero", zero, heldout)], name)
         tasks_said = f", {len(tasks)} tasks" if len(tasks) > 1 else ""
         with progress_bar(evaluator, cfg.budget, f"search ({cfg.method}{tasks_said})") as bar:
-            result = run_search(optimizer, query_evaluator(evaluator, names.fingerprint, expand, where),
+            evaluate = query_evaluator(evaluator, names.fingerprint, expand, where)
+            result = run_search(optimizer, tracker.watch(evaluate, expand, names.fingerprint),
                                 budget=cfg.budget, stop_after_perfect=cfg.stop_after_perfect,
                                 max_tickets=cfg.max_tickets)
             bar.total = result.episodes_used
         top = _top(result, cfg, len(keys))
         candidates = [_ticket(cfg, names, result, c, search_seeds, expand, task_names) for c in top]
         tickets = _select(cfg, evaluator, candidates + (others if validation else []), validation, task_names)
+        tracker.validated(candidates + others)
         sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
         with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2) * len(tasks), "held-out: top tickets"):
             per_task = {name: judge(evaluator, sources, heldout, base, name) for name in task_names}
@@ -89,6 +92,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
         if front:
             summary["front"] = [label for label in front["heldout"] if label not in ("base", "zero")]
     write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    tracker.finish(summary)
     order = {id(c): i for i, c in enumerate(result.candidates)}  # a search ticket's place in the search
     place = {ticket.id: order[id(c)] for ticket, c in zip(candidates, top, strict=True)}
     base_return = float(np.mean([r.ret for judged in per_task.values() for r in judged["base"].results]))
@@ -129,10 +133,14 @@ def _pictures(cfg: SearchConfig, names: Names, summary: dict, result: SearchResu
         judged = [t["ticket_id"] for t in summary["tickets"]]
     span = summary["heldout_seeds"]
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
-               out / "search.png", f"{cfg.method} search: {title}",
+               out / "search.png", search_title(cfg, names),
                validated=list(place.values()) if validated else [],
                judged=[place[t] for t in judged if t in place],
                base=(base_return, f"held-out seeds {span[0]}..{span[1]}"))
+
+
+def search_title(cfg: SearchConfig, names: Names) -> str:
+    return f"{cfg.method} search: {names.policy} on {names.task}"
 
 
 def _top(result: SearchResult, cfg: SearchConfig, seeds: int) -> list:
@@ -217,7 +225,7 @@ def open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
     except OSError as exc:
         raise UserError(f"cannot create --out {out}: {exc.strerror}") from None
     store = RunStore(out / "run.sqlite")
-    config = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name != "max_nonfinite"} | {
+    config = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in ("max_nonfinite", "log")} | {
         "policy": names.policy, "task": names.task, "success": named(cfg.success),
         "policy_fingerprint": names.fingerprint,
         "workers": None, "backend": None, "address": None}  # where episodes run does not change them
