@@ -26,7 +26,7 @@ from results_files import RESULTS, write_results
 from goldenticket.config import EvaluateConfig, SearchConfig
 from goldenticket.policies import BUNDLED_DIR, bundled_tickets
 from goldenticket.policies.registry import split_steps
-from goldenticket.report import rate_text
+from goldenticket.report import p_vs_base, rate_text
 from goldenticket.stats import sign_test, wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import seeds_in
@@ -79,7 +79,7 @@ def table_row(s: dict) -> dict:
     return {"task": s["task"].removeprefix("metaworld/"), "policy": s["policy"].rsplit("/", 1)[1],
             "base": s["base"], "zero": s["zero"], "ticket": best["ticket_id"],
             "best": {k: best[k] for k in ("success_rate", "ci_low", "ci_high", "n")},
-            "p_vs_base": best["p_value"], "p_vs_zero": best["p_vs_zero"],
+            "p_vs_base": p_vs_base(best), "p_vs_zero": best["p_vs_zero"],
             "golden": best["golden"], "fresh": best.get("fresh"),
             "search": f"{s['method']}, {s['search_episodes']} episodes",
             "stopped_because": s["stopped_because"]}
@@ -104,7 +104,7 @@ def summary_rows(rows: list[dict]) -> dict:
         out["fresh"]["mean_fresh"] = float(np.mean([r["fresh"]["success_rate"] for r in golden]))
     out["base_floor"] = [base_floor(rows, bar) for bar in (0.9, 0.97)]
     weak = [r for r in rows if r["base"]["success_rate"] <= WEAK_BASE]
-    out["targets"] = {"pairs": len(weak), "judged": targets(weak, lambda r: r | {"p_value": r["p_vs_base"]}),
+    out["targets"] = {"pairs": len(weak), "judged": targets(weak, lambda r: r),
                       "fresh": targets(weak, lambda r: r["fresh"] | {"best": r["fresh"]})}
     return out
 
@@ -129,7 +129,7 @@ def targets(rows: list[dict], arms) -> dict:
     best's p-values: significant gains over base and zero, mean failure reduction over the base."""
     picked = [arms(r) for r in rows]
     reduction = [failure_reduction(a["best"], a["base"]) for a in picked]
-    return {"vs_base": sum(a["p_value"] < 0.05 for a in picked) / len(picked),
+    return {"vs_base": sum(p_vs_base(a) < 0.05 for a in picked) / len(picked),
             "vs_zero": sum(a["p_vs_zero"] < 0.05 for a in picked) / len(picked),
             "failure_reduction": float(np.mean(reduction)),
             "mean_gain": float(np.mean([a["best"]["success_rate"] - a["base"]["success_rate"]
@@ -213,7 +213,7 @@ def figure(rows: list[dict]):
              title=f"Best ticket vs base and zero ticket (below the line: judged base <= {WEAK_BASE:.0%})")
     left.legend(fontsize="small", loc="upper left")
     cut = [failure_reduction(r["fresh"], r["fresh"]["base"]) for r in weak]
-    colors = ["goldenrod" if r["fresh"]["p_value"] < 0.05 else "0.6" for r in weak]
+    colors = ["goldenrod" if p_vs_base(r["fresh"]) < 0.05 else "0.6" for r in weak]
     right.barh(np.arange(len(weak)), cut, color=colors)
     right.axvline(0.55, color="tab:red", ls="--", label="target 55%")
     right.axvline(float(np.mean(cut)), color="k", label=f"mean {np.mean(cut):.0%}")

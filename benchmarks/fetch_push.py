@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import goldenticket
-from goldenticket.report import rate_text
+from goldenticket.report import p_vs_base, rate_text
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE.parent))  # the repository root: tickets name the task as the CLI does
@@ -58,7 +58,7 @@ def report(r: dict) -> str:
                                ("fresh (best ticket)", r["fresh"], r["fresh_seeds"])):
         best = rows[best_id]
         rates = " | ".join(rate_text(r) for r in (rows["base"], rows["zero"], best))
-        lines.append(f"| {label}: {seeds[0]}-{seeds[1]} | {rates} | {best['p_value']:.2g} | "
+        lines.append(f"| {label}: {seeds[0]}:{seeds[1] + 1} | {rates} | {p_vs_base(best):.2g} | "
                      f"{best['p_vs_zero']:.2g} |")
     wall = r["wall_seconds"]
     return (f"Ticket {best_id} (CEM+racing, {r['search']['search_episodes']} search episodes on "

@@ -32,7 +32,7 @@ from goldenticket.multitask import transfer
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
 from goldenticket.policies import load_policy
-from goldenticket.report import gain_text, rate_text, short_task
+from goldenticket.report import gain_text, p_vs_base, rate_text, short_task
 from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task
@@ -76,11 +76,11 @@ def markdown(results: dict, wall: float, policy: str) -> str:
              f"{BUDGET * len(TASKS)} for the "
              f"multi-task ticket ({mt['search_episodes']} used). Cover: {len(cover['tickets'])} ticket(s) "
              f"({', '.join(cover['tickets'])}).", "",
-             f"### Fresh held-out seeds {FRESH[0]}..{FRESH[-1]} ({len(FRESH)} per task): success, 95% Wilson "
-             "interval; p vs base (one-sided exact paired, Holm over the 3 ticket arms)", "",
+             f"### Fresh held-out seeds {FRESH[0]}:{FRESH[-1] + 1} ({len(FRESH)} per task): success, 95% "
+             "Wilson interval; p vs base (one-sided exact paired, Holm over the 3 ticket arms)", "",
              "| task | " + " | ".join(ARMS) + " |", "|---|" + "---|" * len(ARMS)]
     for task, arms in fresh.items():
-        cells = [rate_text(arms[a]) + (f", p={arms[a]['p_value']:.2g}" if a not in ("base", "zero") else "")
+        cells = [rate_text(arms[a]) + (f", p={p_vs_base(arms[a]):.2g}" if a not in ("base", "zero") else "")
                  for a in ARMS]
         lines.append(f"| {short_task(task)} | " + " | ".join(cells) + " |")
     means = {a: np.mean([fresh[t][a]["success_rate"] for t in fresh]) for a in ARMS}

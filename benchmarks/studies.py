@@ -24,7 +24,7 @@ from pathlib import Path
 from results_files import write_results
 
 from goldenticket.config import EvaluateConfig, SearchConfig
-from goldenticket.report import rate_text
+from goldenticket.report import p_vs_base, rate_text
 from goldenticket.workflow import evaluate_tickets, find_golden_tickets
 
 HERE = Path(__file__).parent
@@ -78,7 +78,7 @@ def markdown(results: dict, wall: float) -> str:
     for task, arms in results["mixture"].items():
         for label in ("base", "best ticket", "mixture"):
             row = arms[label]
-            p = f"{row['p_value']:.3g}" if "p_value" in row else "-"
+            p = "-" if p_vs_base(row) is None else f"{p_vs_base(row):.3g}"
             lines.append(f"| {task} | {label} | {rate_text(row)} | {p} | {row['diversity']:.3f} |")
     lines += ["", "### Sub-space search: held-out success of the top ticket (100 seeds)", "",
               "| task | sub-space | " + " | ".join(f"budget {b}" for b in BUDGETS) + " |",

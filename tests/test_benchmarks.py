@@ -14,7 +14,7 @@ def _rate(p, n=200):
 
 
 def _row(base, zero, best, p_base, p_zero):
-    fresh = _rate(best) | {"p_value": p_base, "p_vs_zero": p_zero, "base": _rate(base), "zero": _rate(zero),
+    fresh = _rate(best) | {"p_vs_base": p_base, "p_vs_zero": p_zero, "base": _rate(base), "zero": _rate(zero),
                            "inside_recorded_interval": True}
     return {"task": "t", "policy": "flow", "base": _rate(base), "zero": _rate(zero), "best": _rate(best),
             "p_vs_base": p_base, "p_vs_zero": p_zero, "golden": p_base < 0.05, "fresh": fresh,

@@ -1,6 +1,7 @@
 import json
 import os
 import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -37,7 +38,8 @@ def test_search_writes_summary_tickets_and_store(search_run):
     assert summary["task"] == TASK and summary["search_episodes"] <= 12
     for key in ("base", "zero", "best"):
         assert {"success_rate", "ci_low", "ci_high", "n"} <= summary[key].keys()
-    assert {"ticket_id", "p_value", "verdict", "ticket_path"} <= summary["best"].keys()
+    assert {"ticket_id", "p_vs_base", "p_vs_zero", "verdict", "ticket_path"} <= summary["best"].keys()
+    assert "p_value" not in summary["best"] and "p_vs_base" not in summary["base"]
     ticket = Ticket.load(summary["best"]["ticket_path"])
     assert ticket.id == summary["best"]["ticket_id"]
     assert ticket.metadata["heldout"]["n"] == 4
@@ -60,6 +62,16 @@ def test_rerun_resumes_from_the_store(search_run, policy_dir):
     assert (search_run / "summary.json").read_text() == before
 
 
+def test_search_picture_names_the_heldout_seeds_as_the_cli_takes_them(search_run, policy_dir, monkeypatch):
+    from goldenticket import plots
+
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or path)
+    assert _search(policy_dir, search_run, workers=1) == 0  # resumed: only the pictures are drawn again
+    legend = [t.get_text() for t in figures[-1].axes[0].get_legend().get_texts()]
+    assert "base policy on held-out seeds 1000000:1000004" in legend
+
+
 def test_evaluate_json_and_tickets_show(search_run, policy_dir, capsys, tmp_path):
     path = json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"]
     capsys.readouterr()
@@ -69,7 +81,7 @@ def test_evaluate_json_and_tickets_show(search_run, policy_dir, capsys, tmp_path
     rows = json.loads(capsys.readouterr().out)
     ticket_id = Ticket.load(path).id
     assert set(rows) == {"base", "zero", ticket_id}
-    assert rows[ticket_id]["n"] == 3 and "p_value" in rows[ticket_id]
+    assert rows[ticket_id]["n"] == 3 and {"p_vs_base", "p_vs_zero"} <= rows[ticket_id].keys()
     assert main(evaluate) == 0
     text = capsys.readouterr().out
     assert f"ticket {ticket_id}" in text and "No golden ticket" in text and (tmp_path / "e.png").is_file()
@@ -201,6 +213,17 @@ def test_bundled_tickets_are_listed_and_found_by_id(search_run, capsys, monkeypa
     assert ticket.id in listing and "1000000:1000004" in listing
     assert main(["tickets", "show", ticket.id]) == 0 and ticket.id in capsys.readouterr().out
     assert main(["tickets", "show", "000000000000"]) == 2
+
+
+def test_tickets_written_before_p_vs_base_list_the_same(search_run):
+    """Older files (the bundled tickets among them) call the p-value against the base `p_value`."""
+    from goldenticket.report import ticket_table
+
+    ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"])
+    held = ticket.metadata["heldout"]
+    old = SimpleNamespace(id=ticket.id, metadata=ticket.metadata | {
+        "heldout": {k: v for k, v in held.items() if k != "p_vs_base"} | {"p_value": held["p_vs_base"]}})
+    assert ticket_table([old]) == ticket_table([ticket])
 
 
 def test_a_ticket_named_twice_is_judged_once(search_run, policy_dir, tmp_path, capsys):

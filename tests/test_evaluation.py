@@ -37,8 +37,8 @@ def test_judge_pairs_every_source_with_the_base_on_the_same_seeds():
     seeds = seeds_in("heldout", 6)
     with Engine(POLICY, get_task(TASK)) as engine:
         judged = judge(Evaluator(engine), {"zero": Constant(np.zeros((8, 4), np.float32))}, seeds)
-    assert judged["base"].p_value is None and judged["base"].rate.n == 6
-    assert 0 <= judged["zero"].p_value <= 1 and judged["zero"].rate.n == 6
+    assert judged["base"].p_vs_base is None and judged["base"].rate.n == 6
+    assert 0 <= judged["zero"].p_vs_base <= 1 and judged["zero"].rate.n == 6
 
 
 def test_an_episode_that_begins_elsewhere_than_the_first_on_its_seed_stops_the_run_unrecorded(tmp_path):

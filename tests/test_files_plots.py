@@ -98,9 +98,9 @@ def _points(ax, label: str) -> list[tuple]:
 
 
 def test_verdict_legend_names_every_arm_and_the_base_line_and_stars_the_chosen_ticket(tmp_path, drawn):
-    rows = {"base": _rate(0.5), "zero ticket": _rate(0.55, p_value=0.4, golden=False),
-            "ticket aaa": _rate(0.8, p_value=0.01, golden=True),
-            "ticket bbb": _rate(0.6, p_value=0.3, golden=False)}
+    rows = {"base": _rate(0.5), "zero ticket": _rate(0.55, p_vs_base=0.4, golden=False),
+            "ticket aaa": _rate(0.8, p_vs_base=0.01, golden=True),
+            "ticket bbb": _rate(0.6, p_vs_base=0.3, golden=False)}
     plots.arms_png(rows, tmp_path / "v.png", "title", best="ticket bbb")
     ax = drawn[0].axes[0]
     assert _legend(ax) == ["base (Gaussian noise)", "zero ticket", "golden ticket", "ticket, not golden",
@@ -110,18 +110,18 @@ def test_verdict_legend_names_every_arm_and_the_base_line_and_stars_the_chosen_t
 
 
 def test_verdict_without_zero_ticket_or_best_draws_what_it_has(tmp_path):
-    rows = {"base": _rate(0.5), "ab12": _rate(0.7, p_value=0.02, golden=True)}
+    rows = {"base": _rate(0.5), "ab12": _rate(0.7, p_vs_base=0.02, golden=True)}
     assert plots.arms_png(rows, tmp_path / "v.png", "session").read_bytes().startswith(b"\x89PNG")
 
 
 def test_search_picture_marks_validated_judged_and_chosen_tickets_and_the_base(tmp_path, drawn):
     scores = [0.2, 0.9, 0.5, 0.7, 0.6, 0.8]
     plots.search_png(scores, [5] * 6, tmp_path / "s.png", "title", validated=[1, 3, 5], judged=[3, 1],
-                     base=(0.4, "held-out seeds 1000000..1000009"))
+                     base=(0.4, "held-out seeds 1000000:1000010"))
     ax = drawn[0].axes[0]
     assert ax.get_ylabel().startswith("search score")
     assert _legend(ax) == ["ticket, 5 episodes", "best so far (5 episodes)",
-                           "base policy on held-out seeds 1000000..1000009", "sent to validation",
+                           "base policy on held-out seeds 1000000:1000010", "sent to validation",
                            "judged on held-out seeds", "chosen ticket (best held-out success)"]
     assert _points(ax, "sent to validation") == [(2, 0.9), (4, 0.7), (6, 0.8)]
     assert _points(ax, "judged on held-out seeds") == [(4, 0.7), (2, 0.9)]

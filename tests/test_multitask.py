@@ -93,7 +93,7 @@ def test_no_regression_passes_over_a_ticket_worse_on_one_task():
 
 def test_greedy_cover_picks_the_fewest_tickets_and_falls_back_to_the_best():
     def cell(gain, significant):
-        return {"success_rate": 0.5 + gain, "gain": gain, "p_value": 0.01 if significant else 0.5,
+        return {"success_rate": 0.5 + gain, "gain": gain, "p_vs_base": 0.01 if significant else 0.5,
                 "significant": significant}
 
     gains = {"A": (0.2, 0.1, -0.1, -0.2, 0.0), "B": (0.3, 0.0, 0.2, -0.1, 0.0),

@@ -140,7 +140,7 @@ def test_a_clearly_better_ticket_stops_the_session_early(tmp_path):
     status = session.status()
     verdict, stopping = status["verdict"], status["verdict"]["stopping"]
     finalist = next(a for a in verdict["arms"] if a != "base")
-    assert verdict["arms"][finalist]["verdict"] == "golden" and verdict["arms"][finalist]["p_value"] < 0.05
+    assert verdict["arms"][finalist]["verdict"] == "golden" and verdict["arms"][finalist]["p_vs_base"] < 0.05
     threshold = stats.sequential_threshold(20, 0.05)
     needed = next(k for k in range(1, 21) if stats.mixture_log_e(k, 0) >= threshold)
     assert stopping["reason"] == "decided early" and stopping["pairs"] == needed < 20

@@ -26,7 +26,7 @@ def test_a_mixture_arm_is_judged_and_spreads_between_tickets_and_base(tmp_path, 
     assert main(args) == 0
     rows = json.loads(capsys.readouterr().out)
     assert set(rows) == {"base", "zero", "mixture", *(Ticket.load(t).id for t in _tickets(tmp_path, 2))}
-    assert rows["mixture"]["n"] == 12 and "p_value" in rows["mixture"]
+    assert rows["mixture"]["n"] == 12 and "p_vs_base" in rows["mixture"]
     tickets = [r["diversity"] for label, r in rows.items() if label not in ("base", "mixture")]
     assert tickets == [0.0, 0.0, 0.0]  # constant noise, deterministic policy and env
     assert rows["base"]["diversity"] > rows["mixture"]["diversity"] > 0

@@ -360,7 +360,7 @@ def _evaluate(args) -> int:
         epsilon = f", eps {cfg.epsilon:g}" if cfg.epsilon else ""
         arms[f"mixture of {len(tickets)}{epsilon}"] = rows["mixture"]
     best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],
-               key=lambda r: (r["success_rate"], -r["p_value"]))
+               key=lambda r: (r["success_rate"], -r["p_vs_base"]))
     if args.plot is not None:
         task = cfg.task or found_under([Ticket.load(p) for p in paths], {"task": None})["task"]
         arms_png(arms, args.plot, f"{cfg.policy} on {task}, seeds {cfg.seeds.start}:{cfg.seeds.stop}",

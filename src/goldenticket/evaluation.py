@@ -104,7 +104,7 @@ class Judged:
 
     label: str
     results: list[EpisodeResult] = field(repr=False)  # per held-out seed, in seed order
-    p_value: float | None = None  # one-sided exact paired test vs base; None for the base
+    p_vs_base: float | None = None  # one-sided exact paired test vs base; None for the base
     p_vs_zero: float | None = None  # the same test vs the zero ticket; None for base and zero
 
     @property
@@ -122,12 +122,12 @@ class Judged:
 
     @property
     def golden(self) -> bool:
-        return self.p_value is not None and self.p_value < ALPHA
+        return self.p_vs_base is not None and self.p_vs_base < ALPHA
 
     def to_dict(self) -> dict:
         out = self.rate.to_dict() | {"nonfinite_episodes": self.nonfinite}
-        if self.p_value is not None:
-            out |= {"p_value": self.p_value, "golden": self.golden,
+        if self.p_vs_base is not None:
+            out |= {"p_vs_base": self.p_vs_base, "golden": self.golden,
                     "verdict": "golden" if self.golden else "not golden"}
         if self.p_vs_zero is not None:
             out["p_vs_zero"] = self.p_vs_zero
@@ -149,7 +149,7 @@ def judged_arms(outcomes: dict[str, list[EpisodeResult]]) -> dict[str, Judged]:
     and vs zero where a "zero" arm exists."""
     judged = {label: Judged(label, results) for label, results in outcomes.items()}
     for label in set(judged) - {"base"}:
-        judged[label].p_value = paired_exact_test(judged[label].successes, judged["base"].successes)
+        judged[label].p_vs_base = paired_exact_test(judged[label].successes, judged["base"].successes)
     if "zero" in judged:
         for label in set(judged) - {"base", "zero"}:
             judged[label].p_vs_zero = paired_exact_test(judged[label].successes,
@@ -181,7 +181,7 @@ def multitask_verdict(per_task: dict[str, dict[str, Judged]], ticket_ids: list[s
         adjust_for_multiplicity(judged, ticket_ids)
     regressing = {t: regressions(per_task, t) for t in ticket_ids}
     allowed = [t for t in ticket_ids if not (no_regression and regressing[t])]
-    ranked = sorted(allowed, key=lambda t: (-average[t].rate.success_rate, average[t].p_value))
+    ranked = sorted(allowed, key=lambda t: (-average[t].rate.success_rate, average[t].p_vs_base))
     return {"tasks": {name: {label: j.to_dict() for label, j in judged.items()}
                       for name, judged in per_task.items()},
             "average": {label: j.to_dict() for label, j in average.items()},
@@ -191,7 +191,7 @@ def multitask_verdict(per_task: dict[str, dict[str, Judged]], ticket_ids: list[s
 
 def adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) -> None:
     """Testing k tickets on the same seeds: Holm-adjust their p-values so 'golden' stays honest."""
-    for attr in ("p_value", "p_vs_zero"):
+    for attr in ("p_vs_base", "p_vs_zero"):
         adjusted = holm_adjust([getattr(judged[t], attr) for t in ticket_ids])
         for ticket_id, p in zip(ticket_ids, adjusted, strict=True):
             setattr(judged[ticket_id], attr, p)

@@ -86,11 +86,11 @@ def matrix(per_task: dict[str, dict[str, Judged]], found_on: dict[str, list[str]
     base Holm-adjusted over the tickets on that task; and the greedy cover."""
     cells = {}
     for task, judged in per_task.items():
-        adjusted = holm_adjust([judged[t].p_value for t in found_on])
+        adjusted = holm_adjust([judged[t].p_vs_base for t in found_on])
         for ticket, p in zip(found_on, adjusted, strict=True):
             rate, base_rate = judged[ticket].rate.success_rate, judged["base"].rate.success_rate
             cells.setdefault(ticket, {})[task] = {"success_rate": rate, "gain": rate - base_rate,
-                                                  "p_value": p, "significant": p < ALPHA}
+                                                  "p_vs_base": p, "significant": p < ALPHA}
     baselines = {task: {arm: judged[arm].to_dict() for arm in ("base", "zero")}
                  for task, judged in per_task.items()}
     return {"tasks": list(per_task), "tickets": found_on, "baselines": baselines, "cells": cells,
@@ -119,7 +119,7 @@ def greedy_cover(cells: dict[str, dict[str, dict]], baselines: dict[str, dict]) 
         if cells[best][task]["gain"] > 0:
             table[task] = {"use": best} | cells[best][task]
         else:
-            table[task] = {"use": "base", "significant": False, "gain": 0.0, "p_value": None,
+            table[task] = {"use": "base", "significant": False, "gain": 0.0, "p_vs_base": None,
                            "success_rate": baselines[task]["base"]["success_rate"]}
     uses = {row["use"] for row in table.values()} - {"base"}
     return {"tickets": chosen, "fallbacks": sorted(uses - set(chosen)),
@@ -128,11 +128,11 @@ def greedy_cover(cells: dict[str, dict[str, dict]], baselines: dict[str, dict]) 
 
 def transfer_csv(study: dict) -> str:
     """One row per (ticket, task): success, gain over base, Holm-adjusted p, significance."""
-    lines = ["ticket,found_on,task,success_rate,base_rate,gain,p_value,significant"]
+    lines = ["ticket,found_on,task,success_rate,base_rate,gain,p_vs_base,significant"]
     for ticket, found_on in study["tickets"].items():
         for task, cell in study["cells"][ticket].items():
             base = study["baselines"][task]["base"]["success_rate"]
             lines.append(f"{ticket},{'+'.join(found_on)},{task},{cell['success_rate']:.4f},{base:.4f},{cell['gain']:.4f},"
-                         f"{cell['p_value']:.4g},{cell['significant']}")
+                         f"{cell['p_vs_base']:.4g},{cell['significant']}")
     return "\n".join(lines) + "\n"
 

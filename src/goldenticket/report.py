@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 
+def p_vs_base(row: dict) -> float | None:
+    """A verdict row's p-value against the base. Files written before it was named `p_vs_base`
+    (older summary.json files, the bundled tickets' metadata) call it `p_value`."""
+    return row.get("p_vs_base", row.get("p_value"))
+
+
 def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
     """One line per noise source: success rate, 95% Wilson interval, p-values (p vs zero only
     when some source has one), verdict; and, when any episode ended in a NaN or infinite action,
@@ -14,7 +20,7 @@ def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
     lines = [f"{title:<{width}} {'success':>8} {'95% Wilson CI':>16} {'n':>5}{extra} {'p vs base':>10}"
              + f" {'p vs zero':>10}" * zero + "  verdict"]
     for label, r in rows.items():
-        p_base, p_zero = (f"{r[key]:.3g}" if key in r else "-" for key in ("p_value", "p_vs_zero"))
+        p_base, p_zero = (f"{r[key]:.3g}" if key in r else "-" for key in ("p_vs_base", "p_vs_zero"))
         ci = f"[{r['ci_low']:.1%}, {r['ci_high']:.1%}]"
         extra = f" {r.get('nonfinite_episodes', 0):>10}" if nonfinite else ""
         lines.append((f"{label:<{width}} {r['success_rate']:>8.1%} {ci:>16} {r['n']:>5}{extra} {p_base:>10}"
@@ -29,10 +35,10 @@ def verdict_text(rows: dict[str, dict], best: dict, note: str) -> str:
     name = best["ticket_id"] + (" (the zero ticket, w = 0)" if best.get("source") == "zero ticket" else "")
     if best["golden"]:
         line = (f"Golden ticket {name}: {best['success_rate']:.1%} vs base {base:.1%} on "
-                f"{best['n']} held-out seeds (p = {best['p_value']:.3g})")
+                f"{best['n']} held-out seeds (p = {best['p_vs_base']:.3g})")
     else:
-        line = (f"No golden ticket: the best ticket ({name}, {best['success_rate']:.1%}) "
-                f"is not significantly better than the base ({base:.1%}); p = {best['p_value']:.3g} >= 0.05")
+        line = (f"No golden ticket: the best ticket ({name}, {best['success_rate']:.1%}) is not "
+                f"significantly better than the base ({base:.1%}); p = {best['p_vs_base']:.3g} >= 0.05")
     if any(r.get("nonfinite_episodes") for r in rows.values()):
         note += (" non-finite: episodes the policy ended with a NaN or infinite action, counted as "
                  "failures.")
@@ -72,7 +78,7 @@ def ticket_table(tickets: list) -> str:
         held = t.metadata["heldout"]
         fresh = t.metadata.get("fresh")
         rows.append((t.metadata["policy"], t.id, f"{t.metadata['search_score']:.0%}", rate_text(held, 6),
-                     f"{held['p_value']:.2g}", f"{held['seeds'][0]}:{held['seeds'][1] + 1}",
+                     f"{p_vs_base(held):.2g}", f"{held['seeds'][0]}:{held['seeds'][1] + 1}",
                      rate_text(fresh, 6) if fresh else "-"))
     return _columns(("policy", "ticket", "search", "held-out success", "p vs base", "seeds",
                      "fresh seeds"), rows)
@@ -93,7 +99,7 @@ def multitask_text(summary: dict) -> str:
         t = arms[shown]
         flag = "REGRESSES" if task in summary["regressions"][shown] else ""
         rows.append((short_task(task), rate_text(arms["base"], 6), rate_text(arms["zero"], 6),
-                     rate_text(t, 6), f"{t['p_value']:.3g}", f"{t['p_vs_zero']:.3g}", flag))
+                     rate_text(t, 6), f"{t['p_vs_base']:.3g}", f"{t['p_vs_zero']:.3g}", flag))
     table = _columns(("task", "base", "zero ticket", f"ticket {shown}", "p vs base", "p vs zero", ""), rows)
     lines = [table, ""]
     average = summary["average"]
@@ -104,7 +110,7 @@ def multitask_text(summary: dict) -> str:
         verdict = "golden on average" if average[best]["golden"] else "not significantly better on average"
         lines.append(f"Best ticket {best}: {average[best]['success_rate']:.1%} averaged over "
                      f"{len(summary['tasks'])} tasks vs base {average['base']['success_rate']:.1%} "
-                     f"(p = {average[best]['p_value']:.3g}, {verdict}).")
+                     f"(p = {average[best]['p_vs_base']:.3g}, {verdict}).")
     for ticket in summary["tickets"]:
         worse = ", ".join(short_task(t) for t in summary["regressions"][ticket]) or "none"
         lines.append(f"  ticket {ticket}: average {average[ticket]['success_rate']:.1%}; "

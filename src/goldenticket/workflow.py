@@ -136,7 +136,7 @@ def _pictures(cfg: SearchConfig, names: Names, summary: dict, result: SearchResu
                out / "search.png", search_title(cfg, names),
                validated=list(place.values()) if validated else [],
                judged=[place[t] for t in judged if t in place],
-               base=(base_return, f"held-out seeds {span[0]}..{span[1]}"))
+               base=(base_return, f"held-out seeds {span[0]}:{span[1] + 1}"))
 
 
 def search_title(cfg: SearchConfig, names: Names) -> str:
@@ -300,7 +300,7 @@ def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, sp
                  fronts: dict[str, dict]) -> list[dict]:
     """Save each ticket with its held-out result (and its place on the Pareto front, `fronts` by
     ticket id, if it has one); entries best first (success, then p)."""
-    ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate, judged[t.id].p_value))
+    ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate, judged[t.id].p_vs_base))
     entries = []
     for t in ranked:
         t.metadata["heldout"] = judged[t.id].to_dict() | {"seeds": span}

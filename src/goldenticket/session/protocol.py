@@ -370,7 +370,7 @@ class Session:
         alpha = self.plan.alpha
         arms = {BASE: Rate.of(lists[BASE]).to_dict()}
         for arm, p in zip(finalists, holm_adjust(p_raw), strict=True):
-            arms[arm] = {**Rate.of(lists[arm]).to_dict(), "p_value": p, "test": tests[arm],
+            arms[arm] = {**Rate.of(lists[arm]).to_dict(), "p_vs_base": p, "test": tests[arm],
                          "golden": p < alpha, "verdict": "golden" if p < alpha else "not golden"}
         used = " and ".join(sorted(set(tests.values())))
         stopping = {"rule": "fixed", "alpha": alpha, "episodes": self.plan.episodes,
@@ -385,7 +385,7 @@ class Session:
         test = self._test()
         name = "sequential sign test, " + ("pairs matched by scene id" if by_scene else "unpaired episodes")
         arms = {BASE: Rate.of(base).to_dict(),
-                finalist: {**Rate.of(ticket).to_dict(), "p_value": test.p_value, "test": name,
+                finalist: {**Rate.of(ticket).to_dict(), "p_vs_base": test.p_value, "test": name,
                            "golden": test.decision == "golden", "verdict": test.decision}}
         reason = "cap reached" if test.pairs == self.plan.confirm else "decided early"
         e, threshold = f"{test.e_value:.3g}", f"{test.threshold:.3g}"
