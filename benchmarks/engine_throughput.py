@@ -33,6 +33,7 @@ from goldenticket.noise import Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine, Episode
 from goldenticket.tasks import get_task, seeds_in
+from goldenticket.tasks.base import stack
 from goldenticket.tasks.metaworld import MetaWorldEnv
 
 POLICY, TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
@@ -70,20 +71,21 @@ def steps_per_second(step, reset, steps: int = 5000) -> float:
     return steps / (time.perf_counter() - start)
 
 
-def policy_call_ms(calls: int = 100) -> dict[str, float]:
+def policy_call_ms(calls: int = 100, policy_name: str = POLICY, task: str = TASK) -> dict[str, float]:
     """One policy call on 16 observations (a shard) in ms: its total, and its parts from torch's
     profiler by op kind; "rest" is everything the profiler does not see as a torch op."""
     from torch.profiler import ProfilerActivity, profile
 
-    policy, env = load_policy(POLICY), MetaWorldEnv(TASK.split("/")[1])
-    obs = np.stack([env.reset(seed) for seed in range(16)])
+    policy, env = load_policy(policy_name), get_task(task).make_env()
+    obs = stack([env.reset(seed) for seed in range(16)])
     noise = np.random.default_rng(0).standard_normal((16, *policy.noise_shape), dtype=np.float32)
     policy.act(obs, noise)
     start = time.perf_counter()
     for _ in range(calls):
         policy.act(obs, noise)
     parts = {"total": (time.perf_counter() - start) / calls * 1e3}
-    kinds = {"matmul": ("aten::addmm", "aten::mm"), "activation": ("aten::erf", "aten::gelu")}
+    kinds = {"convolution": ("aten::_slow_conv2d_forward",), "matmul": ("aten::addmm", "aten::mm"),
+             "activation": ("aten::erf", "aten::gelu")}
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         for _ in range(calls):
             policy.act(obs, noise)
@@ -91,16 +93,17 @@ def policy_call_ms(calls: int = 100) -> dict[str, float]:
     for kind, names in kinds.items():
         parts[kind] = sum(ops.pop(name, 0.0) for name in names)
     parts["other torch ops"] = sum(ops.values())
-    parts["rest"] = max(parts["total"] - parts["matmul"] - parts["activation"] - parts["other torch ops"], 0)
+    profiled = sum(ms for part, ms in parts.items() if part != "total")
+    parts["rest"] = max(parts["total"] - profiled, 0)
     return parts
 
 
-def engine_steps_per_second(episodes: int, workers: int, backend: str = "local") -> tuple[float, float]:
+def engine_steps_per_second(episodes: int, workers: int, backend: str = "local", policy: str = POLICY,
+                            task: str = TASK) -> tuple[float, float]:
     """Env steps/s through the engine, and the peak resident memory of its worker processes in MB
     (local workers only: 0 for Ray's or an in-process engine)."""
-    task = get_task(TASK)
     batch = [Episode(Gaussian(0), s) for s in seeds_in("search", episodes)]
-    with Engine(POLICY, task, workers=workers, backend=backend) as engine:
+    with Engine(policy, get_task(task), workers=workers, backend=backend) as engine:
         engine.evaluate(batch[: engine.shard_size * workers])  # warm-up: build envs, load the policy
         start = time.perf_counter()
         results = engine.evaluate(batch)

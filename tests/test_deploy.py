@@ -13,8 +13,8 @@ import pytest
 import goldenticket
 from goldenticket.errors import UserError
 from goldenticket.policies import TicketedPolicy, deploy, identity, load_policy
-from goldenticket.rollout import stack
 from goldenticket.tasks import get_task
+from goldenticket.tasks.base import stack
 
 README = (Path(__file__).parents[1] / "README.md").read_text()
 EXAMPLES = Path(__file__).parents[1] / "examples"

@@ -119,7 +119,7 @@ def _parse_type(annotation: str):
 def _out_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True,
                    help="output folder: run.sqlite (every episode; rerun to resume), summary.json, "
-                        "tickets/, verdict.png, search.png, config.toml")
+                        "tickets/, verdict.png, search.png, config.toml, log.csv")
 
 
 def _options(args, cls) -> dict:
@@ -169,6 +169,7 @@ def _train_parser(sub) -> None:
     tr.add_argument("--action-noise", type=float, default=0.0,
                     help="std of Gaussian noise added to the demonstrators' actions")
     tr.add_argument("--steps", type=int, default=20_000, help="gradient steps")
+    tr.add_argument("--batch", type=int, default=256, help="demonstration chunks per gradient step")
     tr.add_argument("--denoise-steps", type=int, default=10, help="Euler / DDIM steps at inference")
     tr.add_argument("--horizon", type=int, default=8, help="actions predicted per call (H)")
     tr.add_argument("--n-exec", type=int, default=4, help="actions executed before replanning")
@@ -383,7 +384,7 @@ def _train(args) -> int:
     style = DemoStyle(args.grasp_offset, args.action_noise, args.goal_offset)
     build_policy(args.task, args.kind, args.out, n_demos=args.demos, style=style,
                  steps=args.steps, denoise_steps=args.denoise_steps, horizon=args.horizon,
-                 n_exec=args.n_exec, seed=args.seed, heldout=args.heldout)
+                 n_exec=args.n_exec, seed=args.seed, heldout=args.heldout, batch=args.batch)
     print(f"Wrote {args.out} (config.json, model.safetensors, MODEL_CARD.md).")
     return 0
 

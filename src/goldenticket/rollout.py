@@ -18,7 +18,7 @@ from goldenticket.factories import call_users, picklable
 from goldenticket.noise import NoiseSource
 from goldenticket.policies import NoisePolicy, for_task, load_policy, policy_label
 from goldenticket.tasks import OBJECTIVES, Task
-from goldenticket.tasks.base import PROGRESS_OBJECTIVES, observation_digest
+from goldenticket.tasks.base import PROGRESS_OBJECTIVES, observation_digest, stack
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,9 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
     digests = [observation_digest(o) for o in obs]
     history = getattr(policy, "n_obs_steps", 1)  # how many recent observations act sees (docs/contracts.md)
     recent = [deque([o] * history, maxlen=history) for o in obs]
+    # act reads a chunk's last `history` observations: an env with step_unseen skips drawing the others
+    skips = bool(envs) and callable(getattr(envs[0], "step_unseen", None))
+    unseen, stepping_unseen = (policy.n_exec - history if skips else 0), f"task {task.name!r}: step_unseen()"
     samplers = [ep.source.sampler(ep.seed, policy.noise_shape) for ep in episodes]
     length = np.zeros(n, dtype=int)
     success, done = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
@@ -77,9 +80,12 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
             if not finite:
                 causes[i] = NONFINITE
                 continue
-            for action in chunk:
-                obs[i], success[i], done[i] = call_users(envs[i].step, stepping, action)
-                recent[i].append(obs[i])
+            for j, action in enumerate(chunk):
+                if j < unseen:
+                    success[i], done[i] = call_users(envs[i].step_unseen, stepping_unseen, action)
+                else:
+                    observation, success[i], done[i] = call_users(envs[i].step, stepping, action)
+                    recent[i].append(observation)
                 length[i] += 1
                 if record_actions:
                     executed[i].append(action)
@@ -112,13 +118,6 @@ def observed(recent: deque):
     """What act gets of one episode: its latest observation or, for a policy with n_obs_steps > 1, its
     last n_obs_steps stacked oldest first (the first observation repeated at the start)."""
     return recent[0] if len(recent) == 1 else stack(list(recent))
-
-
-def stack(observations: list) -> np.ndarray | dict[str, np.ndarray]:
-    """One batch from per-env observations: arrays, or dicts of arrays stacked key by key."""
-    if isinstance(observations[0], dict):
-        return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
-    return np.stack(observations)
 
 
 def checked_actions(policy: NoisePolicy, actions: np.ndarray, batch: int) -> np.ndarray:

@@ -10,13 +10,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.nn import functional
 from tqdm import tqdm
 
 from goldenticket.errors import UserError
 from goldenticket.files import new_folder_beside, write_atomic
+from goldenticket.policies import mlp
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
 from goldenticket.stats import Rate
 from goldenticket.tasks import MetaWorldTask, get_task, seeds_in
+from goldenticket.tasks.base import stack
+from goldenticket.tasks.metaworld import STATE_DIM
+from goldenticket.tasks.pixels import SIZE as PIXELS
+from goldenticket.tasks.pixels import PixelsTask
 
 
 @dataclass(frozen=True)
@@ -80,7 +86,7 @@ def collect_demos(task: MetaWorldTask, n: int, style: DemoStyle, seed: int = 0) 
     for episode_seed in seeds_in("train", 100 * n):
         if len(demos.obs) == n:
             break
-        offset = style.habit_offset(rng, task.obs_dim)
+        offset = style.habit_offset(rng, STATE_DIM)  # the expert reads the full state
         obs_seq, act_seq, success = _expert_episode(expert, env, task, episode_seed, offset,
                                                     style.action_noise, rng)
         demos.attempts += 1
@@ -96,26 +102,26 @@ def collect_demos(task: MetaWorldTask, n: int, style: DemoStyle, seed: int = 0) 
 
 
 def _expert_episode(expert, env, task, seed, offset, noise, rng):
+    """One episode of the expert, who reads the env's full state whatever the policy will see."""
     obs, obs_seq, act_seq, success = env.reset(seed), [], [], False
     for _ in range(task.max_steps):
-        action = expert.get_action(obs.astype(np.float64) + offset)
+        action = expert.get_action(env.state.astype(np.float64) + offset)
         action = np.clip(action + noise * rng.standard_normal(task.action_dim), -1, 1)
         obs_seq.append(obs)
         act_seq.append(action.astype(np.float32))
         obs, success, _ = env.step(action)
         if success:
             break
-    return np.array(obs_seq), np.array(act_seq), success
+    return stack(obs_seq), np.array(act_seq), success
 
 
-def chunk_dataset(demos: Demos, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+def chunk_dataset(demos: Demos, horizon: int) -> tuple[np.ndarray | dict[str, np.ndarray], np.ndarray]:
     """(obs_t, actions t..t+H-1) pairs; past the end, the last action repeats."""
-    obs, chunks = [], []
-    for o, a in zip(demos.obs, demos.actions, strict=True):
+    chunks = []
+    for a in demos.actions:
         padded = np.concatenate([a, np.repeat(a[-1:], horizon - 1, axis=0)])
-        obs.append(o)
         chunks.append(np.stack([padded[t : t + horizon] for t in range(len(a))]))
-    return np.concatenate(obs), np.concatenate(chunks)
+    return stack(demos.obs, np.concatenate), np.concatenate(chunks)
 
 
 def train_policy(cfg: PolicyConfig, demos: Demos, *, steps: int = 20_000, batch: int = 256,
@@ -130,17 +136,17 @@ def train_policy(cfg: PolicyConfig, demos: Demos, *, steps: int = 20_000, batch:
     gen = torch.Generator().manual_seed(seed)
     obs_np, act_np = chunk_dataset(demos, cfg.horizon)
     model = Denoiser(cfg)
-    state = obs_np[:, : cfg.obs_dim]  # a task one-hot after it is not standardised
+    state = obs_np["agent_pos"] if cfg.image_size else obs_np[:, : cfg.obs_dim]  # a task one-hot: as is
     model.obs_mean.copy_(torch.as_tensor(state.mean(0)))
     model.obs_std.copy_(torch.as_tensor(state.std(0) + 1e-3))
-    obs = model.normalise_obs(torch.as_tensor(obs_np))
+    inputs = _network_inputs(model, obs_np)
     act = model.normalise_actions(torch.as_tensor(act_np))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     losses, running = [], []
     for step in tqdm(range(steps), desc=f"training {cfg.name}", unit="step", mininterval=1):
-        idx = torch.randint(len(obs), (batch,), generator=gen)
-        loss = _denoising_loss(model, cfg, obs[idx], act[idx], gen)
+        idx = torch.randint(len(act), (batch,), generator=gen)
+        loss = _denoising_loss(model, cfg, inputs(idx, gen), act[idx], gen)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -150,6 +156,33 @@ def train_policy(cfg: PolicyConfig, demos: Demos, *, steps: int = 20_000, batch:
             losses.append(sum(running) / len(running))
             running = []
     return MLPPolicy(cfg, model), losses
+
+
+SHIFT = 4  # training frames move by up to this many pixels each way (random-shift augmentation)
+
+
+def _network_inputs(model: Denoiser, obs_np) -> Callable[[torch.Tensor, torch.Generator], torch.Tensor]:
+    """The network's inputs for a batch of row indices: observations standardised once, or frames
+    encoded batch by batch (the encoder learns), each shifted by up to SHIFT pixels."""
+    if not isinstance(obs_np, dict):
+        obs = model.normalise_obs(torch.as_tensor(obs_np))
+        return lambda idx, gen: obs[idx]
+    pixels, agent_pos = torch.as_tensor(obs_np["pixels"]), torch.as_tensor(obs_np["agent_pos"])
+
+    def encoded(idx: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+        return model.normalise_obs({"pixels": shifted(pixels[idx], gen), "agent_pos": agent_pos[idx]})
+
+    return encoded
+
+
+def shifted(frames: torch.Tensor, gen: torch.Generator) -> torch.Tensor:
+    """Frames [B, S, S, 3], each moved by its own random offset of up to SHIFT pixels per axis
+    (edges repeated), as float."""
+    size = frames.shape[1]
+    padded = functional.pad(frames.permute(0, 3, 1, 2).float(), (SHIFT,) * 4, mode="replicate")
+    rows, cols = torch.randint(2 * SHIFT + 1, (2, len(frames)), generator=gen).tolist()
+    crops = [p[:, r : r + size, c : c + size] for p, r, c in zip(padded, rows, cols, strict=True)]
+    return torch.stack(crops).permute(0, 2, 3, 1)
 
 
 def _denoising_loss(model, cfg, obs, x0, gen):
@@ -167,13 +200,15 @@ def _denoising_loss(model, cfg, obs, x0, gen):
 
 def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: DemoStyle,
                  steps: int, denoise_steps: int = 10, horizon: int = 8, n_exec: int = 4,
-                 seed: int = 0, heldout: int = 200) -> dict:
-    """Collect demos, train, measure base and zero-ticket success, write the policy folder.
+                 seed: int = 0, heldout: int = 200, batch: int = 256, workers: int = 1) -> dict:
+    """Collect demos, train, measure base and zero-ticket success, write the policy folder. A
+    `metaworld-pixels/` task gives a policy that sees its camera's frames and `agent_pos`.
 
     Everything is written to a hidden folder beside `out` that becomes `out` only when complete,
     so a failed or interrupted run leaves no half-written policy."""
     for name, value in (("--demos", n_demos), ("--steps", steps), ("--denoise-steps", denoise_steps),
-                        ("--horizon", horizon), ("--n-exec", n_exec), ("--heldout", heldout)):
+                        ("--horizon", horizon), ("--n-exec", n_exec), ("--heldout", heldout),
+                        ("--batch", batch)):
         if value <= 0:
             raise UserError(f"{name} must be > 0, got {value}")
     if n_exec > horizon:
@@ -186,15 +221,15 @@ def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: D
         raise UserError(f"train needs a built-in Meta-World task (scripted experts), got {task_name!r}")
     name = f"{task_name}/{kind}"
     cfg = PolicyConfig(name, kind, task.obs_dim, task.action_dim, horizon, n_exec,
-                       steps=denoise_steps)
+                       steps=denoise_steps, image_size=PIXELS if isinstance(task, PixelsTask) else None)
 
     def fill(folder: Path) -> dict:
         demos = collect_demos(task, n_demos, style, seed)
-        policy, losses = train_policy(cfg, demos, steps=steps, seed=seed)
+        policy, losses = train_policy(cfg, demos, steps=steps, batch=batch, seed=seed)
         policy.save(folder)
         return {"policy": name, "demos": n_demos, "demo_attempts": demos.attempts,
-                "style": asdict(style), "train_steps": steps, "seed": seed,
-                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measure(folder, task, heldout)
+                "style": asdict(style), "train_steps": steps, "batch": batch, "seed": seed,
+                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measure(folder, task, heldout, workers)
 
     return _into_new_folder(out, fill, cfg)
 
@@ -293,7 +328,7 @@ def model_card(card: dict, cfg: PolicyConfig) -> str:
   attempts) on training seeds, disjoint from search and held-out seeds.
 - **Why it is imperfect**: few, noisy, multimodal demonstrations: {style.describe()}. The
   policy learns that spread of habits; fresh noise at each replan mixes them within one episode.
-{_training_line(card)}
+{_training_line(card, cfg)}
 - **Held-out success** (first {card['base']['n']} held-out seeds):
   - base policy (fresh Gaussian noise at every call): {_rate(card['base'])}
   - zero ticket (w = 0): {_rate(card['zero'])}{band_note(card['base']['success_rate'])}
@@ -301,7 +336,7 @@ def model_card(card: dict, cfg: PolicyConfig) -> str:
 Rebuild: `goldenticket train --task {card['policy'].rsplit('/', 1)[0]} --kind {cfg.kind} \\
 --demos {card['demos']} --grasp-offset {card['style']['grasp_offset']} \\
 --goal-offset {style.goal_offset} --action-noise {style.action_noise} \\
---steps {card['train_steps']} --seed {card['seed']} \\
+--steps {card['train_steps']}{_batch_flag(card)} --seed {card['seed']} \\
 --horizon {cfg.horizon} --n-exec {cfg.n_exec} --denoise-steps {cfg.steps} --out DIR`
 {REBUILD_NOTE}"""
 
@@ -317,7 +352,7 @@ def multitask_card(card: dict, cfg: PolicyConfig) -> str:
   a one-hot over its tasks (in the order below). Tickets, search and evaluation name the task.
 - **Data**: {card['demos']} successful scripted-expert demonstrations on training seeds (disjoint
   from search and held-out seeds), with each task's single-task recipe: few, noisy, multimodal.
-{_training_line(card)}
+{_training_line(card, cfg)}
 - **Held-out success** per task (first {card['base']['n'] // len(cfg.tasks)} held-out seeds each); over all
   tasks: base {_rate(card['base'])}, zero ticket {_rate(card['zero'])}.
 
@@ -333,12 +368,27 @@ Rebuild: `python benchmarks/build_zoo.py --multitask --only {cfg.kind}` (seed {c
 def _model_lines(card: dict, cfg: PolicyConfig) -> str:
     return f"""- **Model**: {cfg.kind} MLP denoiser, {cfg.layers} x {cfg.hidden} GELU; predicts {cfg.horizon}
   actions, executes {cfg.n_exec} then replans; {cfg.steps} {'Euler' if cfg.kind == 'flow' else 'DDIM'} steps
-  (another count at load time: `{card['policy']}@N`)."""
+  (another count at load time: `{card['policy']}@N`).{_encoder_line(cfg)}"""
 
 
-def _training_line(card: dict) -> str:
-    losses = card["loss_per_1k_steps"]
-    return f"""- **Training**: {card['train_steps']} AdamW steps, batch 256, cosine learning rate, seed
+def _encoder_line(cfg: PolicyConfig) -> str:
+    if not cfg.image_size:
+        return ""
+    return f"""
+- **Sees**: a {cfg.image_size} x {cfg.image_size} RGB frame (`pixels`), encoded by three 3 x 3 stride-2
+  convolutions ({', '.join(map(str, mlp.ConvEncoder.CHANNELS[1:]))} channels, GELU) and a linear layer to
+  {mlp.FEATURES} features, beside `agent_pos` (hand x, y, z and gripper); the goal and objects are only
+  in the frame."""
+
+
+def _batch_flag(card: dict) -> str:
+    return f" --batch {card['batch']}" if card.get("batch", 256) != 256 else ""
+
+
+def _training_line(card: dict, cfg: PolicyConfig) -> str:
+    losses, steps = card["loss_per_1k_steps"], card["train_steps"]
+    rate = "cosine learning rate" + (f", frames shifted by up to {SHIFT} px" if cfg.image_size else "")
+    return f"""- **Training**: {steps} AdamW steps, batch {card.get('batch', 256)}, {rate}, seed
   {card['seed']}; mean loss over the first / last (up to) 1k steps: {losses[0]:.4f} / {losses[-1]:.4f}."""
 
 

@@ -13,6 +13,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save
 from torch import nn
+from torch.nn import functional
 
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
@@ -36,6 +37,7 @@ class PolicyConfig:
     steps: int = 10  # Euler steps (flow) or DDIM steps (ddim)
     train_timesteps: int = 100  # DDIM's discrete training schedule
     tasks: list[str] | None = None  # multi-task: the network also sees a one-hot over these tasks
+    image_size: int | None = None  # sees {"pixels": uint8 [B, S, S, 3], "agent_pos": [B, obs_dim]}
 
 
 def _time_embedding(t: torch.Tensor, dim: int = 32) -> torch.Tensor:
@@ -44,13 +46,38 @@ def _time_embedding(t: torch.Tensor, dim: int = 32) -> torch.Tensor:
     return torch.cat([angles.sin(), angles.cos()], dim=1)
 
 
+FEATURES = 64  # what the image encoder makes of a frame
+
+
+class ConvEncoder(nn.Module):
+    """RGB frames [B, S, S, 3] with values 0..255 -> [B, FEATURES]: three 3 x 3 convolutions of
+    stride 2 with GELU, then one linear layer on the whole map (where things are matters)."""
+
+    CHANNELS = (3, 16, 32, 32)
+
+    def __init__(self, size: int):
+        super().__init__()
+        pairs = zip(self.CHANNELS[:-1], self.CHANNELS[1:], strict=True)
+        self.convs = nn.ModuleList(nn.Conv2d(a, b, 3, stride=2, padding=1) for a, b in pairs)
+        self.out = nn.Linear(self.CHANNELS[-1] * math.ceil(size / 8) ** 2, FEATURES)
+
+    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
+        x = pixels.permute(0, 3, 1, 2) / 255 - 0.5
+        for conv in self.convs:
+            x = functional.gelu(conv(x))
+        return self.out(x.flatten(1))
+
+
 class Denoiser(nn.Module):
-    """MLP on [normalised obs, noisy chunk, time embedding] -> chunk-shaped output."""
+    """MLP on [normalised obs, noisy chunk, time embedding] -> chunk-shaped output; an image
+    policy's obs is its frame's encoding followed by its normalised `agent_pos`."""
 
     def __init__(self, cfg: PolicyConfig):
         super().__init__()
         width = cfg.horizon * cfg.action_dim
-        dims = [cfg.obs_dim + len(cfg.tasks or ()) + width + 32] + [cfg.hidden] * cfg.layers
+        self.encoder = ConvEncoder(cfg.image_size) if cfg.image_size else None
+        features = FEATURES if cfg.image_size else 0
+        dims = [features + cfg.obs_dim + len(cfg.tasks or ()) + width + 32] + [cfg.hidden] * cfg.layers
         blocks: list[nn.Module] = []
         for d_in, d_out in zip(dims[:-1], dims[1:], strict=True):
             blocks += [nn.Linear(d_in, d_out), nn.GELU()]
@@ -64,8 +91,11 @@ class Denoiser(nn.Module):
         flat = torch.cat([obs_n, x.flatten(1), _time_embedding(t)], dim=1)
         return self.net(flat).view_as(x)
 
-    def normalise_obs(self, obs: torch.Tensor) -> torch.Tensor:
-        """Observations standardised; columns past obs_dim (a task one-hot) pass unchanged."""
+    def normalise_obs(self, obs: torch.Tensor | dict[str, torch.Tensor]) -> torch.Tensor:
+        """Observations standardised; columns past obs_dim (a task one-hot) pass unchanged; a
+        frame is encoded."""
+        if isinstance(obs, dict):
+            return torch.cat([self.encoder(obs["pixels"]), self.normalise_obs(obs["agent_pos"])], dim=1)
         n = len(self.obs_mean)
         if obs.shape[1] == n:
             return (obs - self.obs_mean) / self.obs_std
@@ -137,6 +167,8 @@ class MLPPolicy:
             raise UserError(f"unknown policy kind {cfg.kind!r}; choose from {KINDS}")
         if cfg.kind == "ddim" and not 1 <= cfg.steps <= cfg.train_timesteps:
             raise UserError(f"DDIM steps must be in 1..{cfg.train_timesteps}, got {cfg.steps}")
+        if cfg.image_size and cfg.tasks:
+            raise UserError("an image policy cannot also be multi-task")
         self.cfg = cfg
         self.model = (model or Denoiser(cfg)).eval()
         self._scale = copy.deepcopy(self.model).double()  # float64: (de)normalisation and the network
@@ -161,11 +193,13 @@ class MLPPolicy:
         """Same actions on every CPU: float64 inference in fixed blocks, rounded to a grid
         (`policies/numerics.py`)."""
         denoise = self._flow if self.cfg.kind == "flow" else self._ddim
-        x = in_blocks(denoise, self._scale.normalise_obs(self._inputs(obs)), noise)
+        x = in_blocks(lambda rows, x: denoise(self._scale.normalise_obs(rows), x), self._inputs(obs), noise)
         return on_grid(self._scale.denormalise_actions(x)[:, : self.cfg.n_exec])
 
-    def _inputs(self, obs: np.ndarray) -> torch.Tensor:
+    def _inputs(self, obs) -> torch.Tensor | dict[str, torch.Tensor]:
         """float64 observations, with the task's one-hot for a multi-task policy."""
+        if self.cfg.image_size:
+            return float64(self._checked_frames(obs))
         obs = float64(obs)
         if not self.cfg.tasks:
             return obs
@@ -175,6 +209,22 @@ class MLPPolicy:
         one_hot = torch.zeros(len(obs), len(self.cfg.tasks), dtype=torch.float64)
         one_hot[:, self.cfg.tasks.index(self.task)] = 1.0
         return torch.cat([obs, one_hot], dim=1)
+
+    def _checked_frames(self, obs) -> dict[str, np.ndarray]:
+        """An image policy's observations as its contract says, else a one-line UserError."""
+        size, n = self.cfg.image_size, self.cfg.obs_dim
+        if not (isinstance(obs, dict) and {"pixels", "agent_pos"} <= obs.keys()):
+            got = sorted(obs) if isinstance(obs, dict) else type(obs).__name__
+            raise UserError(f"policy {self.name!r} sees images: observations must be dicts with 'pixels' "
+                            f"and 'agent_pos', got {got}")
+        pixels, agent_pos = np.asarray(obs["pixels"]), np.asarray(obs["agent_pos"])
+        if pixels.dtype != np.uint8 or pixels.shape[1:] != (size, size, 3):
+            raise UserError(f"policy {self.name!r}: 'pixels' must be uint8 [B, {size}, {size}, 3], "
+                            f"got {pixels.dtype} {list(pixels.shape)}")
+        if agent_pos.shape != (len(pixels), n):
+            raise UserError(f"policy {self.name!r}: 'agent_pos' must be [B, {n}] beside {len(pixels)} "
+                            f"frames, got {list(agent_pos.shape)}")
+        return {"pixels": pixels, "agent_pos": agent_pos}
 
     def _flow_times(self) -> torch.Tensor:
         """Euler steps from t=1 (noise) to t=0 (action): the time each step starts at."""

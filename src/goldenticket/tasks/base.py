@@ -83,6 +83,14 @@ def observation_digest(obs) -> str:
     return digest.hexdigest()
 
 
+def stack(observations: list, join: Callable = np.stack) -> np.ndarray | dict[str, np.ndarray]:
+    """One batch from per-env observations (arrays, or dicts of arrays joined key by key);
+    `join=np.concatenate` joins batches into one."""
+    if isinstance(observations[0], dict):
+        return {key: join([o[key] for o in observations]) for key in observations[0]}
+    return join(observations)
+
+
 @functools.cache
 def quiet_env_warnings() -> None:
     """Silence warnings raised from inside gymnasium and metaworld (the passive env checker's),
@@ -103,6 +111,8 @@ class Env(Protocol):
 
     # Optional: progress() -> float in [0, 1], how far the task got in the current state (a dense
     # tie-breaker between failed episodes, read once when an episode ends).
+    # Optional: step_unseen(action) -> (success, done), a step whose observation no policy reads
+    # (rollout calls it for all but a chunk's last n_obs_steps steps): an env that renders skips the frame.
 
 
 class Task(Protocol):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import ctypes.util
+import os
 from dataclasses import dataclass
 from functools import cache
 
@@ -13,16 +15,27 @@ from goldenticket.tasks.base import quiet_env_warnings
 
 @cache
 def _env_classes() -> dict:
-    """Meta-World's v3 env classes, once the known warnings are quiet."""
+    """Meta-World's v3 env classes, once the known warnings are quiet and MuJoCo's GL backend is
+    chosen (`_prefer_offscreen_gl`)."""
     quiet_env_warnings()
+    _prefer_offscreen_gl()
     from metaworld.env_dict import ALL_V3_ENVIRONMENTS
 
     return dict(ALL_V3_ENVIRONMENTS)
 
 
+def _prefer_offscreen_gl() -> None:
+    """MuJoCo picks its GL backend when first imported: offscreen EGL where libEGL is installed and
+    the user chose nothing else, so that camera tasks render without a display."""
+    if ctypes.util.find_library("EGL") and os.environ.get("PYOPENGL_PLATFORM", "egl") == "egl":
+        os.environ.setdefault("MUJOCO_GL", "egl")
+
+
 def task_names() -> list[str]:
     return sorted(f"metaworld/{name}" for name in _env_classes())
 
+
+STATE_DIM = 39  # Meta-World's goal-observable state vector
 
 # The only model arrays Meta-World writes after construction (at reset: object and goal
 # positions), found by comparing every array of every task's model before and after resets.
@@ -44,7 +57,7 @@ class MetaWorldEnv:
     """
 
     def __init__(self, env_name: str, fast: bool = True):
-        self._host = _shared_host(env_name) if fast else _Host(_configured(env_name))
+        self._host = shared_host(env_name) if fast else _Host(_configured(env_name))
         self._attributes = self._host.fresh_attributes()
         self._model_arrays = self._host.fresh_model_arrays()
 
@@ -59,6 +72,15 @@ class MetaWorldEnv:
         obs, _, terminated, truncated, info = self._host.lend(self).step(np.asarray(action, dtype=np.float64))
         self._last = (action, obs)
         return obs.astype(np.float32), bool(info["success"]), bool(terminated or truncated)
+
+    @property
+    def state(self) -> np.ndarray:
+        """The current observation (float32), without stepping."""
+        return self._last[1].astype(np.float32)
+
+    def lent(self):
+        """The Meta-World env holding this env's state (its MuJoCo `data` and `model`)."""
+        return self._host.lend(self)
 
     def progress(self) -> float:
         """Meta-World's shaped reward of the current state (0..10) over 10: how close the task is
@@ -107,7 +129,7 @@ def _copied(values: dict) -> dict:
 
 
 @cache
-def _shared_host(env_name: str) -> _Host:
+def shared_host(env_name: str) -> _Host:
     env = _configured(env_name)
     metaworld_fast.install(env, env_name)
     return _Host(env, shared=True)
@@ -130,7 +152,7 @@ class MetaWorldTask:
 
     name: str
     max_steps: int = 150
-    obs_dim: int = 39
+    obs_dim: int = STATE_DIM
     action_dim: int = 4
 
     @property

@@ -8,6 +8,7 @@ from goldenticket.errors import OptionError, UserError
 from goldenticket.factories import is_import_string
 from goldenticket.tasks.gym import GymTask
 from goldenticket.tasks.metaworld import MetaWorldTask, task_names
+from goldenticket.tasks.pixels import PixelsTask, pixel_task_names
 
 
 def get_task(task: str | Callable, max_steps: int | None = None,
@@ -23,8 +24,10 @@ def get_task(task: str | Callable, max_steps: int | None = None,
     if success is not None:
         raise OptionError(f"success applies to Gymnasium tasks; {task!r} has its own success signal",
                           "success")
+    if task in pixel_task_names():
+        return PixelsTask(task, **limit)
     if task not in task_names():
         hint = ", ".join(n for n in task_names() if "pick" in n or "reach" in n)
-        raise UserError(f"unknown task {task!r}; tasks look like: {hint} (or package.module:factory "
-                        "for a Gymnasium env of yours)")
+        raise UserError(f"unknown task {task!r}; tasks look like: {hint} (metaworld-pixels/<env-name> "
+                        "seen through a camera, or package.module:factory for a Gymnasium env of yours)")
     return MetaWorldTask(task, **limit)
