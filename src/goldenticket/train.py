@@ -338,7 +338,7 @@ Rebuild: `goldenticket train --task {card['policy'].rsplit('/', 1)[0]} --kind {c
 --goal-offset {style.goal_offset} --action-noise {style.action_noise} \\
 --steps {card['train_steps']}{_batch_flag(card)} --seed {card['seed']} \\
 --horizon {cfg.horizon} --n-exec {cfg.n_exec} --denoise-steps {cfg.steps} --out DIR`
-{REBUILD_NOTE}"""
+{REBUILD_NOTE}{FRAMES_NOTE if cfg.image_size else ""}"""
 
 
 def multitask_card(card: dict, cfg: PolicyConfig) -> str:
@@ -396,4 +396,10 @@ REBUILD_NOTE = """\
 (training runs in float32: bit for bit on the same kind of CPU; on another CPU the weights, and so
 the fingerprint and the numbers, differ. Rollouts of these weights give the same episodes on any
 x86-64 CPU with AVX2 and FMA.)
+"""
+
+FRAMES_NOTE = """\
+The frames come from Mesa's software rasterizer (llvmpipe) through EGL: the same episodes need the
+same frames, so the same Mesa release as well (a resumed run stops with one line when a seed's
+initial frame differs from the one it recorded).
 """
