@@ -28,8 +28,8 @@ def search(policy, task, out: str | Path, **options) -> dict:
     summary (`summary.json`). `task` may be several task names (a tuple): one ticket for a
     multi-task policy. `options`: the fields of `config.SearchConfig` (method, budget, seed,
     search_seeds, heldout, top_k, objective, front_objective, stop_after_perfect, max_tickets,
-    max_steps, success, subspace, validation_seeds, no_regression, workers, backend, address,
-    max_nonfinite)."""
+    max_steps, success, subspace, validation_seeds, no_regression, tickets, log, workers, backend,
+    address, max_nonfinite)."""
     from goldenticket.config import SearchConfig, make
     from goldenticket.workflow import find_golden_tickets
 

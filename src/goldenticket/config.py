@@ -9,6 +9,7 @@ that folder alone: `goldenticket search --config runs/x/config.toml`.
 from __future__ import annotations
 
 import copy
+import importlib
 import json
 import tomllib
 from collections.abc import Callable, Sequence
@@ -23,6 +24,7 @@ from goldenticket.tasks.base import FRONT_OBJECTIVES, OBJECTIVES
 from goldenticket.ticket_search.optimizers import OPTIMIZERS
 
 MAX_NONFINITE = 0.1  # default: stop once more than this fraction of an arm's held-out episodes is non-finite
+SINKS = {"tensorboard": "tensorboard", "wandb": "wandb"}  # a `log` sink (tracking.py) -> the package it needs
 
 
 def option(default=MISSING, help: str = "", **cli) -> field:
@@ -139,9 +141,7 @@ class SearchConfig(EngineOptions):
                               "best, so it needs validation_seeds > 0", "tickets", "validation_seeds")
         self._check_tasks()
         self._check_front()
-        from goldenticket.tracking import require  # imports the sinks' packages, only those asked for
-
-        require(self.log)
+        check_sinks(self.log)
 
     def _check_tasks(self) -> None:
         if len(self.tasks) > 1:
@@ -228,6 +228,18 @@ def sink_names(value) -> tuple[str, ...]:
     """`log` as a tuple of sink names, from one name, a comma-separated list or several of them."""
     items = [value] if isinstance(value, str) else value
     return tuple(dict.fromkeys(name.strip() for item in items for name in item.split(",") if name.strip()))
+
+
+def check_sinks(sinks: Sequence[str]) -> None:
+    """OptionError unless every sink is known and its package imports (before any work is done)."""
+    for name in sinks:
+        if name not in SINKS:
+            raise OptionError(f"unknown log {name!r}; choose from {', '.join(SINKS)}", "log")
+        try:
+            importlib.import_module(SINKS[name])
+        except ImportError:
+            raise OptionError(f"log {name} needs the {SINKS[name]} package: pip install {SINKS[name]}",
+                              "log") from None
 
 
 def make(cls, values: dict):

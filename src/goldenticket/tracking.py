@@ -5,7 +5,6 @@ changes a recorded number (docs/logging.md)."""
 from __future__ import annotations
 
 import csv
-import importlib
 import time
 import tomllib
 from collections.abc import Callable
@@ -15,26 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.config import SearchConfig, to_toml
-from goldenticket.errors import OptionError
 from goldenticket.files import check_target
 from goldenticket.plots import search_png
 from goldenticket.ticket_search import Candidate, EpisodeOutcome, Query
 from goldenticket.tickets import Ticket
 
-SINKS = {"tensorboard": "tensorboard", "wandb": "wandb"}  # a `log` choice -> the package it needs
 REDRAW_SECONDS = 10.0  # search.png at most this often while the search runs (a drawing takes ~0.3 s)
-
-
-def require(sinks: tuple[str, ...]) -> None:
-    """OptionError unless every sink is known and its package imports (before any work is done)."""
-    for name in sinks:
-        if name not in SINKS:
-            raise OptionError(f"unknown log {name!r}; choose from {', '.join(SINKS)}", "log")
-        try:
-            importlib.import_module(SINKS[name])
-        except ImportError:
-            raise OptionError(f"log {name} needs the {SINKS[name]} package: pip install {SINKS[name]}",
-                              "log") from None
 
 
 @dataclass(frozen=True)
@@ -127,7 +112,7 @@ class WandbSink:
         self.run.finish(exit_code=int(failed))
 
 
-OPEN = {"tensorboard": TensorBoardSink, "wandb": WandbSink}
+OPEN = {"tensorboard": TensorBoardSink, "wandb": WandbSink}  # config.SINKS: the packages they need
 
 
 class Tracker:
