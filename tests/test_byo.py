@@ -108,11 +108,13 @@ def test_users_mistakes_are_one_line_and_exit_2(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_readme_example_runs_as_written(tmp_path):
-    """README's mine.py and its Python API script, run as a user would: objects go to spawned
-    workers, and the run names the task by the script's module, as the CLI does. Without its
-    `if __name__ == "__main__":` guard the script stops at once, saying so."""
-    section = (HERE.parent / "README.md").read_text().split("## Use your own policy and environment")[1]
-    mine, script = re.findall(r"```python\n(.*?)```", section, re.S)[:2]
+    """README's mine.py and the docs' Python API script for it, run as a user would: objects go to
+    spawned workers, and the run names the task by the script's module, as the CLI does. Without
+    its `if __name__ == "__main__":` guard the script stops at once, saying so."""
+    section = (HERE.parent / "README.md").read_text().split("## Use your own policy")[1]
+    mine = re.findall(r"```python\n(.*?)```", section, re.S)[0]
+    how_to = (HERE.parent / "docs" / "how-to" / "own-policy.md").read_text().split("## From Python")[1]
+    script = re.findall(r"```python\n(.*?)```", how_to, re.S)[0]
     (tmp_path / "mine.py").write_text(mine)
     (tmp_path / "run_api.py").write_text(script)
     proc = subprocess.run([sys.executable, "run_api.py"], cwd=tmp_path, capture_output=True, text=True,

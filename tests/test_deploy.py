@@ -67,7 +67,7 @@ def test_every_shipped_example_policy_deploys_on_one_observation(monkeypatch):
 
 def test_readme_deploy_snippet_runs_and_refuses_another_policys_ticket():
     namespace = {}
-    exec(_readme_block("## Using a ticket"), namespace)
+    exec(_readme_block("## Deploy a ticket"), namespace)
     assert namespace["actions"].shape == (4, 4)
     with pytest.raises(UserError, match="was found for policy"):
         deploy("metaworld/reach-v3/flow", "ac7033f127b8")

@@ -223,13 +223,13 @@ def test_session_commands_refuse_bad_input_in_one_line(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_readme_robot_loop_runs_as_written(tmp_path):
-    """README's robot loop against a live server, for a policy that takes `noise=`; here the
+def test_docs_robot_loop_runs_as_written(tmp_path):
+    """The docs' robot loop against a live server, for a policy that takes `noise=`; here the
     'robot' is Meta-World and it also plays the operator, posting each true outcome."""
     from pathlib import Path
 
-    readme = (Path(__file__).parent.parent / "README.md").read_text()
-    loop = re.findall(r"```python\n(.*?)```", readme.split("## Searching on a real robot")[1], re.S)[0]
+    page = (Path(__file__).parent.parent / "docs" / "how-to" / "real-robot.md").read_text()
+    loop = re.findall(r"```python\n(.*?)```", page.split("## The robot's side")[1], re.S)[0]
     plan = _plan(policy=POLICY, tickets=2, episodes_per_ticket=2, confirm=2, seed=9)
     Session.new(tmp_path, plan)
     port = _free_port()
