@@ -49,7 +49,7 @@ print(json.dumps(out))
 
 # The same episodes' digests, recorded on the machine that made the shipped numbers (AMD EPYC,
 # AVX-512): a CPU of another kind must reproduce them. CPUs without AVX2 and FMA do not (glibc
-# picks other libm routines for MuJoCo): see README, "Same numbers on every machine".
+# picks other libm routines for MuJoCo): see docs/how-to/reproducibility.md.
 RECORDED = {
     "metaworld/pick-place-v3/flow": "285d332ad7c66fe6666548dc4f57adc40881b1a8620fc25739a7552fedfb61d2",
     "metaworld/reach-v3/ddim@2": "0070fab8872e11a728a4d0a6d83faa5c7105dcbf5565532741f5c7375543b461",

@@ -4,7 +4,7 @@ Math kernels (MKL, ATen SIMD) differ between CPUs in the last bits, and rollouts
 policies run their network in float64, where kernels differ by < 1e-13, and round the actions
 once to multiples of GRID (2^-20, far below any actuator's resolution): a kernel difference
 changes an action only if it straddles a grid point, measured at ~3e-10 per action value
-(README, "Same numbers on every machine"). The network runs on fixed blocks of BLOCK rows, the
+(docs/how-to/reproducibility.md). The network runs on fixed blocks of BLOCK rows, the
 last zero-padded, so each row's actions are bitwise independent of its batch, on one torch
 thread (these matmuls are small: threads only cost, ~100x on a busy CPU).
 """
