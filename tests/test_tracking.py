@@ -9,9 +9,11 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
+import torch
 
 from goldenticket import tracking
 from goldenticket.cli import main
+from goldenticket.policies import MLPPolicy, PolicyConfig
 
 HERE = Path(__file__).parent
 SEARCH = ["search", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env",
@@ -21,8 +23,9 @@ SEARCH = ["search", "--policy", "byo_example:make_policy", "--task", "byo_exampl
 
 @pytest.fixture(scope="module")
 def logged(tmp_path_factory):
-    """A search (two CMA-ES generations) logged to every sink, run twice (the second resumes from its
-    store), with search.png due after every generation; the drawings made during the search."""
+    """A search (two CMA-ES generations) logged to TensorBoard, then run again logged to every sink
+    (resuming from its store: logging is not part of the run), with search.png due after every
+    generation; the drawings made during the second run."""
     pytest.importorskip("tensorboard")
     pytest.importorskip("wandb")
     out, drawn, search_png = tmp_path_factory.mktemp("run"), [], tracking.search_png
@@ -36,9 +39,9 @@ def logged(tmp_path_factory):
         patch.setenv("WANDB_SILENT", "true")
         patch.setattr(tracking, "REDRAW_SECONDS", 0.0)
         patch.setattr(tracking, "search_png", draw)
-        for _ in range(2):
+        for sinks in ("tensorboard", "tensorboard,wandb"):
             drawn.clear()
-            assert main([*SEARCH, "--log", "tensorboard,wandb", "--out", str(out)]) == 0
+            assert main([*SEARCH, "--log", sinks, "--out", str(out)]) == 0
     with (out / "log.csv").open(newline="") as f:
         rows = list(csv.DictReader(f))
     return out, json.loads((out / "summary.json").read_text()), rows, drawn
@@ -119,9 +122,8 @@ def test_tensorboard_reads_back_the_logged_numbers(logged):
 def test_wandb_keeps_an_offline_run_that_reads_back_the_logged_numbers(logged):
     pytest.importorskip("wandb", minversion="0.31")  # its reader of offline runs, `wandb leet inspect`
     out, _, rows, _ = logged
-    runs = sorted((out / "wandb").glob("offline-run-*"))
-    assert len(runs) == 2  # one per run of the search
-    inspected = subprocess.run([sys.executable, "-m", "wandb", "leet", "inspect", "--json", str(runs[-1])],
+    [run] = (out / "wandb").glob("offline-run-*")
+    inspected = subprocess.run([sys.executable, "-m", "wandb", "leet", "inspect", "--json", str(run)],
                                capture_output=True, text=True, timeout=120, check=True).stdout
     records = [json.loads(line) for line in inspected.splitlines()]
     history = [r["history"]["item"] for r in records if r["type"] == "history"]
@@ -134,6 +136,27 @@ def test_wandb_keeps_an_offline_run_that_reads_back_the_logged_numbers(logged):
     config = next(r["run"]["config"]["update"] for r in records if r["type"] == "run")
     assert config["budget"] == 90 and config["log"] == ["tensorboard", "wandb"]
     assert [r["exit"]["exit_code"] for r in records if r["type"] == "exit"] == [0]
+
+
+@pytest.mark.slow
+def test_a_multitask_log_holds_the_task_average_and_each_tasks_verdict(tmp_path):
+    tasks = ["metaworld/reach-v3", "metaworld/drawer-close-v3"]
+    torch.manual_seed(0)
+    MLPPolicy(PolicyConfig("test/mt2/flow", "flow", 39, 4, hidden=32, layers=2, steps=3, tasks=tasks)).save(
+        tmp_path / "policy")
+    out = tmp_path / "run"
+    assert main(["search", "--policy", str(tmp_path / "policy"), "--task", tasks[0], "--task", tasks[1],
+                 "--budget", "8", "--search-seeds", "2", "--heldout", "2", "--max-steps", "10",
+                 "--method", "rs", "--workers", "1", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    with (out / "log.csv").open(newline="") as f:
+        logged = {(r["task"], r["arm"], r["metric"]): float(r["value"]) for r in csv.DictReader(f)
+                  if r["stage"] == "verdict"}
+    verdicts = {"": summary["average"]} | summary["tasks"]
+    assert logged == {(task, arm, metric): float(value) for task, arms in verdicts.items()
+                      for arm, row in arms.items() for metric, value in row.items()
+                      if isinstance(value, int | float)}
+    assert {task for task, _, _ in logged} == {"", *tasks}
 
 
 @pytest.mark.parametrize("sink", ["tensorboard", "wandb"])
