@@ -163,20 +163,21 @@ def main() -> None:
             print(f"  {part:16s} {ms:6.2f} ms")
 
 
-def plot(rates: dict, path: Path) -> None:
-    """Env steps/s against workers for each backend, beside the ideal W x raw."""
+def plot(rates: dict, path: Path, references: tuple = (("raw", "k--", "W x raw stock env"),),
+         title: str = "Engine throughput, Meta-World pick-place") -> None:
+    """Env steps/s against workers for each backend, beside W x each reference rate."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(5.5, 3.8))
     ax = fig.subplots()
     workers = sorted(rates["engine"])
-    ax.plot(workers, [w * rates["raw"] for w in workers], "k--", linewidth=1, label="W x raw stock env")
+    for key, style, label in references:
+        ax.plot(workers, [w * rates[key] for w in workers], style, linewidth=1, label=label)
     for name in ("engine", "ray"):
         if name in rates:
             ax.plot(workers, [rates[name][w] for w in workers], "o-", label=f"{name} (local)" if name ==
                     "engine" else "Ray actors")
-    ax.set(xlabel="workers", ylabel="env steps/s", xticks=workers,
-           title="Engine throughput, Meta-World pick-place")
+    ax.set(xlabel="workers", ylabel="env steps/s", xticks=workers, title=title)
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)

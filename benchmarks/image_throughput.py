@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from engine_throughput import engine_steps_per_second, policy_call_ms, steps_per_second
+from engine_throughput import engine_steps_per_second, plot, policy_call_ms, steps_per_second
 
 from goldenticket.policies import load_policy
 from goldenticket.tasks import get_task
@@ -78,7 +78,9 @@ def main() -> None:
             rates["peak_rss_mb"] = max(peak for _, peak in measured.values())
     results = Path(__file__).parent / "results"
     (results / "image_throughput.json").write_text(json.dumps(rates, indent=2) + "\n")
-    plot(rates, results / "image_throughput.png")
+    plot(rates, results / "image_throughput.png", (("rendering", "k--", "W x rendering only"),
+                                                   ("policy", "k:", "W x policy only")),
+         "Image policy throughput, drawer-open from 64 x 64 frames")
     report(rates, backends)
 
 
@@ -99,26 +101,6 @@ def report(rates: dict, backends: list[str]) -> None:
             print(f"{backend:5s} engine, {workers} worker(s): {rate:8.0f} steps/s; per worker {ratio:.2f} "
                   f"x the slower of rendering and policy (target {TARGET}: {verdict})")
     print(f"peak memory of a local worker process: {rates['peak_rss_mb']:.0f} MB")
-
-
-def plot(rates: dict, path: Path) -> None:
-    """Env steps/s against workers: engine (and Ray) beside W x rendering only and W x policy only."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(5.5, 3.8))
-    ax = fig.subplots()
-    workers = sorted(rates["engine"])
-    for key, style in (("rendering", "k--"), ("policy", "k:")):
-        ax.plot(workers, [w * rates[key] for w in workers], style, linewidth=1, label=f"W x {key} only")
-    for name in ("engine", "ray"):
-        if name in rates:
-            ax.plot(workers, [rates[name][w] for w in workers], "o-",
-                    label="engine (local)" if name == "engine" else "Ray actors")
-    ax.set(xlabel="workers", ylabel="env steps/s", xticks=workers,
-           title="Image policy throughput, drawer-open from 64 x 64 frames")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":
