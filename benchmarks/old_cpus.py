@@ -1,12 +1,14 @@
 """How far results move on x86-64 CPUs without AVX2 and FMA (before ~2013), where glibc picks
-other libm routines and MuJoCo's floats differ in the last bits.
+other libm routines and MuJoCo's floats differ in the last bits, and Mesa's llvmpipe draws
+camera frames with other vector code.
 
     python benchmarks/old_cpus.py [--heldout 200]   # writes benchmarks/results/old_cpus.{md,json}
 
 Each policy's base, zero ticket and bundled golden tickets run on the same held-out seeds twice,
 in subprocesses: natively, and with glibc told that the CPU lacks AVX2 and FMA
-(GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA). Every other kernel choice (MKL, ATen, numpy)
-leaves episodes identical: tests/test_numerics.py.
+(GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA) and llvmpipe told it has SSE4.1 at most
+(GALLIUM_OVERRIDE_CPU_CAPS=sse4.1; it draws the image policy's frames). Every other kernel
+choice (MKL, ATen, numpy) leaves episodes identical: tests/test_numerics.py.
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
-POLICIES = ("metaworld/pick-place-v3/flow", "metaworld/reach-v3/ddim@2")
-OLD_CPU = {"GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2,-FMA"}
+POLICIES = ("metaworld/pick-place-v3/flow", "metaworld/reach-v3/ddim@2",
+            "metaworld-pixels/drawer-open-v3/flow")
+OLD_CPU = {"GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2,-FMA", "GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1"}
 EPISODES = """
 import json, sys
 import numpy as np
