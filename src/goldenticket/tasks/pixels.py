@@ -26,9 +26,8 @@ AGENT_POS = slice(0, 4)  # of Meta-World's state: hand x, y, z and gripper openi
 BACKENDS = ("egl", "osmesa")  # MUJOCO_GL values that render without a display
 INSTALL = "apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri (or libosmesa6 with MUJOCO_GL=osmesa)"
 
-# The arm's links, pedestal and head: 54k of Meta-World's 68k mesh faces, off-frame or behind the
-# gripper from this camera. Drawn, a frame costs ~2.5x as much on llvmpipe; hidden, the gripper,
-# table and objects remain.
+# The arm's links, pedestal and head: 54k of Meta-World's 68k mesh faces. Drawn, a frame costs
+# ~2.5x as much on llvmpipe; hidden, the gripper, table and objects remain in the frame.
 HIDDEN_BODIES = ("right_arm_base_link", "right_l0", "right_l1", "right_l2", "right_l3", "right_l4",
                  "right_l5", "right_l6", "head", "pedestal")
 HIDDEN_GROUP = 5
