@@ -72,6 +72,7 @@ def test_check_refuses_frames_that_vary(monkeypatch):
 
 
 def test_a_renderer_with_a_display_backend_is_one_line(monkeypatch):
+    pixels_module.pixel_task_names()  # MuJoCo imported as goldenticket imports it, with EGL
     from mujoco import gl_context
 
     class OnScreen:
@@ -154,3 +155,12 @@ def test_an_image_policy_on_a_state_task_is_one_line(capsys):
                  "--seeds", "1000000:1000002"]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if "goldenticket: error" in line]
     assert len(errors) == 1 and "sees images" in errors[0]
+
+
+def test_a_state_policy_on_a_camera_task_is_one_line(capsys):
+    from goldenticket.cli import main
+
+    assert main(["evaluate", "--policy", "metaworld/drawer-open-v3/flow", "--task", TASK,
+                 "--seeds", "1000000:1000002"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if "goldenticket: error" in line]
+    assert len(errors) == 1 and "sees state vectors [B, 39]" in errors[0] and "'pixels'" in errors[0]

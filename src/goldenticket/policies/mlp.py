@@ -200,6 +200,9 @@ class MLPPolicy:
         """float64 observations, with the task's one-hot for a multi-task policy."""
         if self.cfg.image_size:
             return float64(self._checked_frames(obs))
+        if isinstance(obs, dict):
+            raise UserError(f"policy {self.name!r} sees state vectors [B, {self.cfg.obs_dim}], got "
+                            f"observations with keys {sorted(obs)} (a camera task needs an image policy)")
         obs = float64(obs)
         if not self.cfg.tasks:
             return obs

@@ -15,10 +15,8 @@ from goldenticket.tasks.base import quiet_env_warnings
 
 @cache
 def _env_classes() -> dict:
-    """Meta-World's v3 env classes, once the known warnings are quiet and MuJoCo's GL backend is
-    chosen (`_prefer_offscreen_gl`)."""
+    """Meta-World's v3 env classes, once the known warnings are quiet."""
     quiet_env_warnings()
-    _prefer_offscreen_gl()
     from metaworld.env_dict import ALL_V3_ENVIRONMENTS
 
     return dict(ALL_V3_ENVIRONMENTS)
@@ -29,6 +27,9 @@ def _prefer_offscreen_gl() -> None:
     the user chose nothing else, so that camera tasks render without a display."""
     if ctypes.util.find_library("EGL") and os.environ.get("PYOPENGL_PLATFORM", "egl") == "egl":
         os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+_prefer_offscreen_gl()  # on import of goldenticket.tasks: before anything here imports MuJoCo
 
 
 def task_names() -> list[str]:
