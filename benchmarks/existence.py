@@ -24,6 +24,7 @@ from build_zoo import MT10
 from results_files import RESULTS, write_results
 
 from goldenticket.config import EvaluateConfig, SearchConfig
+from goldenticket.evaluation import to_dicts
 from goldenticket.policies import BUNDLED_DIR, bundled_tickets
 from goldenticket.policies.registry import split_steps
 from goldenticket.report import p_vs_base, rate_text
@@ -48,7 +49,7 @@ def pairs(tasks=MT10) -> list[tuple[str, str]]:
 def run_pair(task: str, policy: str, runs: Path, workers: int) -> dict:
     """Search and judge one pair; its best ticket is then re-judged on fresh held-out seeds."""
     out = runs / policy.removeprefix("metaworld/").replace("/", "_")
-    summary = find_golden_tickets(SearchConfig(policy, task, workers=workers, **SETTINGS), out)
+    summary = find_golden_tickets(SearchConfig(policy, task, workers=workers, **SETTINGS), out).to_dict()
     best = summary["best"]
     best["fresh"] = fresh_check(Path(best["ticket_path"]), policy, task, out, workers)
     return summary
@@ -60,7 +61,7 @@ def fresh_check(path: Path, policy: str, task: str, out: Path, workers: int) -> 
     seeds = seeds_in("heldout", SETTINGS["heldout"] + FRESH)[SETTINGS["heldout"]:]
     cfg = EvaluateConfig(policy, task, (str(path),), seeds, SETTINGS["seed"], workers=workers)
     with RunStore(out / "fresh.sqlite") as store:
-        rows = evaluate_tickets(cfg, store)
+        rows = to_dicts(evaluate_tickets(cfg, store))
     ticket = Ticket.load(path)
     recorded, rate = ticket.metadata["heldout"], rows[ticket.id]["success_rate"]
     return rows[ticket.id] | {

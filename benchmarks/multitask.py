@@ -143,6 +143,7 @@ def main() -> None:
                      runs / "transfer")
     mt = find_golden_tickets(SearchConfig(args.policy, TASKS, METHOD, BUDGET * len(TASKS), search_seeds=5,
                                           heldout=100, top_k=3, workers=args.workers), runs / "multitask")
+    mt = mt.to_dict()
     searches = runs / "transfer" / "search"
     own = {task: Ticket.load(searches / task.replace("/", "_") / "tickets" / f"{tid}.safetensors")
            for tid, tasks in study["tickets"].items() for task in tasks}

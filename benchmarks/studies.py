@@ -24,6 +24,7 @@ from pathlib import Path
 from results_files import write_results
 
 from goldenticket.config import EvaluateConfig, SearchConfig
+from goldenticket.evaluation import to_dicts
 from goldenticket.report import p_vs_base, rate_text
 from goldenticket.workflow import evaluate_tickets, find_golden_tickets
 
@@ -38,7 +39,7 @@ def pareto(task: str, runs: Path, workers: int) -> dict:
     cfg = SearchConfig(f"metaworld/{task}/flow", f"metaworld/{task}", method="rs", budget=1000,
                        search_seeds=10, heldout=100, top_k=3, stop_after_perfect=None, workers=workers,
                        front_objective="speed", validation_seeds=0)
-    summary = find_golden_tickets(cfg, runs / f"pareto_{task}")
+    summary = find_golden_tickets(cfg, runs / f"pareto_{task}").to_dict()
     return json.loads((runs / f"pareto_{task}" / "front.json").read_text()) | {"summary": summary}
 
 
@@ -46,7 +47,7 @@ def mixture(task: str, pareto_summary: dict, workers: int) -> dict:
     paths = [Path(t["ticket_path"]) for t in pareto_summary["tickets"]]
     cfg = EvaluateConfig(f"metaworld/{task}/flow", f"metaworld/{task}", tuple(map(str, paths)), MIXTURE_SEEDS,
                          workers=workers, mixture=True)
-    rows = evaluate_tickets(cfg)
+    rows = to_dicts(evaluate_tickets(cfg))
     best = max((label for label in rows if label not in ("base", "zero", "mixture")),
                key=lambda label: rows[label]["success_rate"])
     return {"base": rows["base"], "best ticket": rows[best] | {"ticket_id": best}, "mixture": rows["mixture"],
@@ -61,8 +62,8 @@ def subspace(task: str, runs: Path, workers: int) -> dict:
             cfg = SearchConfig(f"metaworld/{task}/flow", f"metaworld/{task}", "cem-racing", budget,
                                heldout=100, top_k=1, workers=workers, subspace=space, validation_seeds=0)
             s = find_golden_tickets(cfg, runs / f"subspace_{task}_{space.replace(':', '')}_{budget}")
-            curves[space].append({"budget": budget, "episodes": s["search_episodes"], "best": s["best"],
-                                  "base": s["base"]})
+            curves[space].append({"budget": budget, "episodes": s.run.search_episodes,
+                                  "best": s.best.to_dict(), "base": s.base.to_dict()})
     return curves
 
 

@@ -143,15 +143,15 @@ def test_search_marks_the_tickets_the_run_validated_and_judged(tmp_path, drawn, 
                        search_seeds=3, validation_seeds=3, heldout=5, top_k=2, workers=1, max_steps=10)
     summary = find_golden_tickets(cfg, tmp_path)
     verdict, search = (figure.axes[0] for figure in drawn)
-    best = summary["best"]
+    best = summary.best
     assert [t.get_text() for t in verdict.get_yticklabels() if t.get_fontweight() == "bold"] == [
-        f"ticket {best['ticket_id']}"]
+        f"ticket {best.id}"]
     assert len(_points(search, "sent to validation")) == 3 * cfg.top_k
     assert [y for _, y in _points(search, "judged on held-out seeds")] == [
-        t["search_score"] for t in summary["tickets"]]
-    assert [y for _, y in _points(search, "chosen ticket (best held-out success)")] == [best["search_score"]]
+        t.search_score for t in summary.tickets]
+    assert [y for _, y in _points(search, "chosen ticket (best held-out success)")] == [best.search_score]
     base_line = next(line for line in search.lines if line.get_label().startswith("base policy"))
-    assert base_line.get_ydata()[0] == summary["base"]["success_rate"]  # objective "success"
+    assert base_line.get_ydata()[0] == summary.base.rate.success_rate  # objective "success"
 
 
 def test_existence_figure_titles_fit_in_the_picture(monkeypatch):

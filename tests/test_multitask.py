@@ -85,10 +85,10 @@ def test_no_regression_passes_over_a_ticket_worse_on_one_task():
         "y": _arms(base=[True] * 10 + [False] * 10, zero=[False] * 20, A=[False] * 20,
                    B=[True] * 10 + [False] * 10),
     }
-    assert verdict(per_task, ["A", "B"], no_regression=False)["best"] == "A"
+    assert verdict(per_task, ["A", "B"], no_regression=False).best == "A"
     guarded = verdict(per_task, ["A", "B"], no_regression=True)
-    assert guarded["best"] == "B" and guarded["regressions"] == {"A": ["y"], "B": []}
-    assert verdict({"y": per_task["y"]}, ["A"], no_regression=True)["best"] is None
+    assert guarded.best == "B" and guarded.regressions == {"A": ["y"], "B": []}
+    assert verdict({"y": per_task["y"]}, ["A"], no_regression=True).best is None
 
 
 def test_greedy_cover_picks_the_fewest_tickets_and_falls_back_to_the_best():

@@ -25,15 +25,16 @@ __version__ = "0.1.0"
 
 def search(policy, task, out: str | Path, **options) -> dict:
     """Search tickets and judge the best on held-out seeds into `out` (resumable); returns the
-    summary (`summary.json`). `task` may be several task names (a tuple): one ticket for a
-    multi-task policy. `options`: the fields of `config.SearchConfig` (method, budget, seed,
-    search_seeds, heldout, top_k, objective, front_objective, stop_after_perfect, max_tickets,
-    max_steps, success, subspace, validation_seeds, no_regression, tickets, log, workers, backend,
-    address, max_nonfinite)."""
+    summary as `summary.json` holds it (`workflow.find_golden_tickets` returns it typed). `task`
+    may be several task names (a tuple): one ticket for a multi-task policy. `options`: the fields
+    of `config.SearchConfig` (method, budget, seed, search_seeds, heldout, top_k, objective,
+    front_objective, stop_after_perfect, max_tickets, max_steps, success, subspace,
+    validation_seeds, no_regression, tickets, log, workers, backend, address, max_nonfinite)."""
     from goldenticket.config import SearchConfig, make
     from goldenticket.workflow import find_golden_tickets
 
-    return find_golden_tickets(make(SearchConfig, {"policy": policy, "task": task} | options), Path(out))
+    cfg = make(SearchConfig, {"policy": policy, "task": task} | options)
+    return find_golden_tickets(cfg, Path(out)).to_dict()
 
 
 def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
@@ -43,9 +44,10 @@ def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
     were found under. `options`: the other fields of `config.EvaluateConfig` (seed, max_steps,
     success, allow_transfer, mixture, epsilon, workers, backend, address, max_nonfinite)."""
     from goldenticket.config import EvaluateConfig, make
+    from goldenticket.evaluation import to_dicts
     from goldenticket.workflow import evaluate_tickets
 
     seeds = seeds if isinstance(seeds, range) else list(seeds)
     cfg = make(EvaluateConfig, {"policy": policy, "task": task, "tickets": tickets,
                                 "seeds": seeds} | options)
-    return evaluate_tickets(cfg)
+    return to_dicts(evaluate_tickets(cfg))

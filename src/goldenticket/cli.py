@@ -319,7 +319,7 @@ def _transfer(args) -> int:
 
 def _run_search(cfg, out: Path) -> int:
     from goldenticket.report import multitask_text, verdict_text
-    from goldenticket.workflow import arm_rows, find_golden_tickets
+    from goldenticket.workflow import find_golden_tickets
 
     start = time.perf_counter()
     s = find_golden_tickets(cfg, out)
@@ -328,18 +328,18 @@ def _run_search(cfg, out: Path) -> int:
         print(f"Tickets saved in {out / 'tickets'}. Wrote {out / 'summary.json'}, verdict.png and search.png "
               f"in {time.perf_counter() - start:.0f} s.")
         return 0
-    print(verdict_text(arm_rows(s["base"], s["zero"], s["tickets"]), s["best"], s["p_value_note"]))
-    if "front" in s:
-        print(f"Pareto front ({cfg.objective} vs {cfg.front_objective}): {len(s['front'])} tickets "
-              f"({', '.join(s['front'])}), judged on the held-out seeds in {out / 'front.json'} and "
+    print(verdict_text(s.rows(), s.best.heldout, s.best.name, s.p_value_note))
+    if s.front is not None:
+        print(f"Pareto front ({cfg.objective} vs {cfg.front_objective}): {len(s.front)} tickets "
+              f"({', '.join(s.front)}), judged on the held-out seeds in {out / 'front.json'} and "
               f"front.png; their files are in {out / 'tickets'}.")
-    print(f"Best ticket saved to {s['best']['ticket_path']}. Wrote {out / 'summary.json'}, "
+    print(f"Best ticket saved to {s.best.path}. Wrote {out / 'summary.json'}, "
           f"verdict.png and search.png in {time.perf_counter() - start:.0f} s.")
     return 0
 
 
 def _evaluate(args) -> int:
-    from goldenticket.evaluation import p_value_note
+    from goldenticket.evaluation import p_value_note, to_dicts
     from goldenticket.files import check_target
     from goldenticket.plots import arms_png
     from goldenticket.policies import find_ticket
@@ -354,25 +354,24 @@ def _evaluate(args) -> int:
         if not args.plot.parent.is_dir() or not os.access(args.plot.parent, os.W_OK):
             raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
     rows = evaluate_tickets(cfg)
-    tickets = [r | {"ticket_id": label} for label, r in rows.items()
-               if label not in ("base", "zero", "mixture")]
+    tickets = {label: r for label, r in rows.items() if label not in ("base", "zero", "mixture")}
     arms = arm_rows(rows["base"], rows["zero"], tickets)
     if cfg.mixture:
         epsilon = f", eps {cfg.epsilon:g}" if cfg.epsilon else ""
         arms[f"mixture of {len(tickets)}{epsilon}"] = rows["mixture"]
-    best = max(tickets or [rows["zero"] | {"ticket_id": "zero"}],
-               key=lambda r: (r["success_rate"], -r["p_vs_base"]))
+    candidates = tickets or {"zero": rows["zero"]}
+    best = max(candidates, key=lambda t: (candidates[t].rate.success_rate, -candidates[t].p_vs_base))
     if args.plot is not None:
         task = cfg.task or found_under([Ticket.load(p) for p in paths], {"task": None})["task"]
-        arms_png(arms, args.plot, f"{cfg.policy} on {task}, seeds {cfg.seeds.start}:{cfg.seeds.stop}",
-                 best=f"ticket {best['ticket_id']}")
+        title = f"{cfg.policy} on {task}, seeds {cfg.seeds.start}:{cfg.seeds.stop}"
+        arms_png(to_dicts(arms), args.plot, title, best=f"ticket {best}")
     if args.json:
-        print(json.dumps(rows, indent=2))
+        print(json.dumps(to_dicts(rows), indent=2))
     else:
-        print(verdict_text(arms, best, p_value_note(len(arms) - 2)))
+        print(verdict_text(arms, candidates[best], best, p_value_note(len(arms) - 2)))
         if cfg.mixture:
             print("diversity (RMS spread of executed actions across 5 noise streams from each of the first "
-                  "10 seeds): " + ", ".join(f"{label} {r['diversity']:.3f}" for label, r in arms.items()))
+                  "10 seeds): " + ", ".join(f"{label} {r.diversity:.3f}" for label, r in arms.items()))
         if args.plot is not None:
             print(f"Wrote {args.plot}.")
     return 0

@@ -120,18 +120,62 @@ class Judged:
         """Episodes ended as failures by a NaN or infinite action."""
         return sum(r.cause == NONFINITE for r in self.results)
 
+    def row(self) -> VerdictRow:
+        return VerdictRow(self.rate, self.nonfinite, self.p_vs_base, self.p_vs_zero)
+
+    def to_dict(self) -> dict:
+        return self.row().to_dict()
+
+
+@dataclass(frozen=True)
+class VerdictRow:
+    """An arm's held-out verdict: success rate, episodes a NaN or infinite action ended, p-values vs
+    base and vs the zero ticket (None: not tested), and its diversity where measured."""
+
+    rate: Rate
+    nonfinite: int = 0
+    p_vs_base: float | None = None
+    p_vs_zero: float | None = None
+    diversity: float | None = None
+
     @property
     def golden(self) -> bool:
         return self.p_vs_base is not None and self.p_vs_base < ALPHA
 
     def to_dict(self) -> dict:
+        """The row as summary.json, ticket metadata and `evaluate --json` write it."""
         out = self.rate.to_dict() | {"nonfinite_episodes": self.nonfinite}
         if self.p_vs_base is not None:
             out |= {"p_vs_base": self.p_vs_base, "golden": self.golden,
                     "verdict": "golden" if self.golden else "not golden"}
         if self.p_vs_zero is not None:
             out["p_vs_zero"] = self.p_vs_zero
+        if self.diversity is not None:
+            out["diversity"] = self.diversity
         return out
+
+
+def to_dicts(rows: dict[str, VerdictRow]) -> dict[str, dict]:
+    """Verdict rows by arm, as JSON writes them."""
+    return {label: row.to_dict() for label, row in rows.items()}
+
+
+@dataclass(frozen=True)
+class MultitaskVerdict:
+    """Several tasks' verdict: rows per task and on average by arm, the tickets judged, the tasks
+    each significantly regresses on, and the best ticket (None: none qualifies)."""
+
+    tasks: dict[str, dict[str, VerdictRow]]
+    average: dict[str, VerdictRow]
+    tickets: tuple[str, ...]
+    regressions: dict[str, list[str]]
+    no_regression: bool
+    best: str | None
+
+    def to_dict(self) -> dict:
+        return {"tasks": {name: to_dicts(rows) for name, rows in self.tasks.items()},
+                "average": to_dicts(self.average), "tickets": list(self.tickets),
+                "regressions": self.regressions, "no_regression": self.no_regression, "best": self.best}
 
 
 def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence[int],
@@ -172,7 +216,7 @@ def regressions(per_task: dict[str, dict[str, Judged]], label: str) -> list[str]
 
 
 def multitask_verdict(per_task: dict[str, dict[str, Judged]], ticket_ids: list[str],
-                      no_regression: bool) -> dict:
+                      no_regression: bool) -> MultitaskVerdict:
     """Per task and on average: base, zero and each ticket with p-values (Holm-adjusted over the
     tickets), the tasks each ticket significantly regresses on, and the best ticket: the highest
     average success, among tickets that regress nowhere if `no_regression` (None if none is left)."""
@@ -182,11 +226,12 @@ def multitask_verdict(per_task: dict[str, dict[str, Judged]], ticket_ids: list[s
     regressing = {t: regressions(per_task, t) for t in ticket_ids}
     allowed = [t for t in ticket_ids if not (no_regression and regressing[t])]
     ranked = sorted(allowed, key=lambda t: (-average[t].rate.success_rate, average[t].p_vs_base))
-    return {"tasks": {name: {label: j.to_dict() for label, j in judged.items()}
-                      for name, judged in per_task.items()},
-            "average": {label: j.to_dict() for label, j in average.items()},
-            "tickets": ticket_ids, "regressions": regressing, "no_regression": no_regression,
-            "best": ranked[0] if ranked else None}
+    return MultitaskVerdict({name: _rows(judged) for name, judged in per_task.items()}, _rows(average),
+                            tuple(ticket_ids), regressing, no_regression, ranked[0] if ranked else None)
+
+
+def _rows(judged: dict[str, Judged]) -> dict[str, VerdictRow]:
+    return {label: j.row() for label, j in judged.items()}
 
 
 def adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from matplotlib.container import ErrorbarContainer
 from matplotlib.figure import Figure
@@ -13,6 +14,9 @@ from matplotlib.ticker import PercentFormatter
 
 from goldenticket.files import write_atomic
 from goldenticket.report import gain_text, short_task
+
+if TYPE_CHECKING:
+    from goldenticket.evaluation import MultitaskVerdict
 
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 ARMS = {"base": "base (Gaussian noise)", "zero ticket": "zero ticket", "golden": "golden ticket",
@@ -127,23 +131,23 @@ def front_png(study: dict, path: Path) -> Path:
     return _save(fig, path)
 
 
-def tasks_png(summary: dict, path: Path, title: str) -> Path:
+def tasks_png(verdict: MultitaskVerdict, path: Path, title: str) -> Path:
     """Per task and on average: base, zero ticket and the best ticket (the top one by average
     success when no ticket qualified), with 95% Wilson intervals; tasks it regresses on in red."""
-    ticket = summary["best"] or max(summary["tickets"], key=lambda t: summary["average"][t]["success_rate"])
-    rows = {short_task(name): arms for name, arms in summary["tasks"].items()}
-    rows["average"] = summary["average"]
+    ticket = verdict.best or max(verdict.tickets, key=lambda t: verdict.average[t].rate.success_rate)
+    rows = {short_task(name): arms for name, arms in verdict.tasks.items()}
+    rows["average"] = verdict.average
     fig = Figure(figsize=(8, 1.2 + 0.75 * len(rows)))
     ax = fig.subplots()
     arms = (("base", "base", COLORS["base"]), ("zero", "zero ticket", COLORS["zero ticket"]),
             (ticket, f"ticket {ticket}", COLORS["golden"]))
     for y, arms_of_task in enumerate(rows.values()):
         for offset, (label, legend, color) in zip((-0.22, 0, 0.22), arms, strict=True):
-            r = arms_of_task[label]
-            ax.errorbar(r["success_rate"], y + offset, xerr=[[r["success_rate"] - r["ci_low"]],
-                                                             [r["ci_high"] - r["success_rate"]]],
+            r = arms_of_task[label].rate
+            ax.errorbar(r.success_rate, y + offset,
+                        xerr=[[r.success_rate - r.ci_low], [r.ci_high - r.success_rate]],
                         fmt="o", capsize=3, color=color, label=legend if y == 0 else None)
-    regressing = {short_task(t) for t in summary["regressions"][ticket]}
+    regressing = {short_task(t) for t in verdict.regressions[ticket]}
     ax.set_yticks(range(len(rows)), list(rows))
     for label in ax.get_yticklabels():
         if label.get_text() in regressing:

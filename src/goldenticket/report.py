@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from goldenticket.evaluation import VerdictRow
+    from goldenticket.workflow import MultitaskSummary
+
 
 def p_vs_base(row: dict) -> float | None:
     """A verdict row's p-value against the base. Files written before it was named `p_vs_base`
@@ -28,21 +34,22 @@ def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
     return "\n".join(lines)
 
 
-def verdict_text(rows: dict[str, dict], best: dict, note: str) -> str:
+def verdict_text(rows: dict[str, VerdictRow], best: VerdictRow, name: str, note: str) -> str:
     """The verdict table (rows from `workflow.arm_rows`), a one-line plain verdict on the best
-    ticket, and how to read the p-values (and the non-finite column, when shown)."""
-    base = rows["base"]["success_rate"]
-    name = best["ticket_id"] + (" (the zero ticket, w = 0)" if best.get("source") == "zero ticket" else "")
-    if best["golden"]:
-        line = (f"Golden ticket {name}: {best['success_rate']:.1%} vs base {base:.1%} on "
-                f"{best['n']} held-out seeds (p = {best['p_vs_base']:.3g})")
+    ticket (`best`, called `name`), and how to read the p-values (and the non-finite column, when
+    shown)."""
+    base = rows["base"].rate.success_rate
+    if best.golden:
+        line = (f"Golden ticket {name}: {best.rate.success_rate:.1%} vs base {base:.1%} on "
+                f"{best.rate.n} held-out seeds (p = {best.p_vs_base:.3g})")
     else:
-        line = (f"No golden ticket: the best ticket ({name}, {best['success_rate']:.1%}) is not "
-                f"significantly better than the base ({base:.1%}); p = {best['p_vs_base']:.3g} >= 0.05")
-    if any(r.get("nonfinite_episodes") for r in rows.values()):
+        line = (f"No golden ticket: the best ticket ({name}, {best.rate.success_rate:.1%}) is not "
+                f"significantly better than the base ({base:.1%}); p = {best.p_vs_base:.3g} >= 0.05")
+    if any(r.nonfinite for r in rows.values()):
         note += (" non-finite: episodes the policy ended with a NaN or infinite action, counted as "
                  "failures.")
-    return f"{verdict_table(rows)}\n\n{line}\n{note}"
+    table = verdict_table({label: r.to_dict() for label, r in rows.items()})
+    return f"{table}\n\n{line}\n{note}"
 
 
 def _columns(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
@@ -52,8 +59,17 @@ def _columns(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
 
 
 def rate_text(r: dict, width: int = 0) -> str:
-    """`56.5% [50%, 63%]`: a success rate with its 95% Wilson interval."""
-    return f"{r['success_rate']:{width}.1%} [{r['ci_low']:.0%}, {r['ci_high']:.0%}]"
+    """`56.5% [50%, 63%]`: a success rate with its 95% Wilson interval (a row as JSON holds it)."""
+    return _interval(r["success_rate"], r["ci_low"], r["ci_high"], width)
+
+
+def row_text(row: VerdictRow, width: int = 0) -> str:
+    """`rate_text` of a verdict row."""
+    return _interval(row.rate.success_rate, row.rate.ci_low, row.rate.ci_high, width)
+
+
+def _interval(rate: float, low: float, high: float, width: int) -> str:
+    return f"{rate:{width}.1%} [{low:.0%}, {high:.0%}]"
 
 
 def policy_table(cards: list[dict]) -> str:
@@ -89,33 +105,33 @@ def short_task(name: str) -> str:
     return name.rsplit("/", 1)[-1]
 
 
-def multitask_text(summary: dict) -> str:
+def multitask_text(summary: MultitaskSummary) -> str:
     """Per task and on average: base, zero ticket and the best ticket (p-values vs base and zero),
     each task the ticket regresses on flagged; then every ticket's average and regressions."""
-    best = summary["best"]
-    shown = best or summary["tickets"][0]
+    verdict = summary.verdict
+    best, average = verdict.best, verdict.average
+    shown = best or verdict.tickets[0]
     rows = []
-    for task, arms in [*summary["tasks"].items(), ("average", summary["average"])]:
+    for task, arms in [*verdict.tasks.items(), ("average", average)]:
         t = arms[shown]
-        flag = "REGRESSES" if task in summary["regressions"][shown] else ""
-        rows.append((short_task(task), rate_text(arms["base"], 6), rate_text(arms["zero"], 6),
-                     rate_text(t, 6), f"{t['p_vs_base']:.3g}", f"{t['p_vs_zero']:.3g}", flag))
+        flag = "REGRESSES" if task in verdict.regressions[shown] else ""
+        rows.append((short_task(task), row_text(arms["base"], 6), row_text(arms["zero"], 6),
+                     row_text(t, 6), f"{t.p_vs_base:.3g}", f"{t.p_vs_zero:.3g}", flag))
     table = _columns(("task", "base", "zero ticket", f"ticket {shown}", "p vs base", "p vs zero", ""), rows)
     lines = [table, ""]
-    average = summary["average"]
     if best is None:
         lines.append("No ticket qualifies: with --no-regression, every ticket is significantly worse than "
                      "the base on some task.")
     else:
-        verdict = "golden on average" if average[best]["golden"] else "not significantly better on average"
-        lines.append(f"Best ticket {best}: {average[best]['success_rate']:.1%} averaged over "
-                     f"{len(summary['tasks'])} tasks vs base {average['base']['success_rate']:.1%} "
-                     f"(p = {average[best]['p_vs_base']:.3g}, {verdict}).")
-    for ticket in summary["tickets"]:
-        worse = ", ".join(short_task(t) for t in summary["regressions"][ticket]) or "none"
-        lines.append(f"  ticket {ticket}: average {average[ticket]['success_rate']:.1%}; "
+        said = "golden on average" if average[best].golden else "not significantly better on average"
+        lines.append(f"Best ticket {best}: {average[best].rate.success_rate:.1%} averaged over "
+                     f"{len(verdict.tasks)} tasks vs base {average['base'].rate.success_rate:.1%} "
+                     f"(p = {average[best].p_vs_base:.3g}, {said}).")
+    for ticket in verdict.tickets:
+        worse = ", ".join(short_task(t) for t in verdict.regressions[ticket]) or "none"
+        lines.append(f"  ticket {ticket}: average {average[ticket].rate.success_rate:.1%}; "
                      f"significantly worse than base on: {worse}")
-    return "\n".join(lines + [summary["p_value_note"] + " Regression: one-sided exact paired test, base "
+    return "\n".join(lines + [summary.p_value_note + " Regression: one-sided exact paired test, base "
                               "better than the ticket on that task, p < 0.05 (not adjusted)."])
 
 

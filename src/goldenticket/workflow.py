@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +16,13 @@ from goldenticket.errors import OptionError, UserError
 from goldenticket.evaluation import (
     Evaluator,
     Judged,
+    MultitaskVerdict,
+    VerdictRow,
     adjust_for_multiplicity,
     judge,
     multitask_verdict,
     p_value_note,
+    to_dicts,
 )
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian, TopK
@@ -37,7 +40,7 @@ from goldenticket.tickets import Ticket, zero_ticket
 from goldenticket.tracking import Tracker
 
 
-def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
+def find_golden_tickets(cfg: SearchConfig, out: Path) -> Summary | MultitaskSummary:
     """Run the whole job into `out`; resumes from `out/run.sqlite` if it holds the same config.
     On several tasks (a multi-task policy's), one ticket for the task-averaged objective, judged
     per task and on average. Search episodes go to the tasks in turn: seed key k runs task
@@ -84,15 +87,15 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> dict:
             per_task = {name: judge(evaluator, sources, heldout, base, name) for name in task_names}
         front, fronts = _front(cfg, names, evaluator, result, (search_seeds, heldout), (base, zero), expand,
                                tasks[0].max_steps, out) if cfg.front_objective else (None, {})
-    span = [heldout[0], heldout[-1]]
+    run = SearchRun(names.policy, cfg.method, cfg.seed, result.episodes_used, result.stopped_because,
+                    (heldout[0], heldout[-1]))
     if len(tasks) > 1:
-        summary = _multitask_summary(cfg, names, per_task, tickets, result, span, out)
+        summary = _multitask_summary(cfg, per_task, tickets, run, out)
     else:
-        summary = _summary(cfg, names, per_task[task_names[0]], tickets, result, span, out, fronts)
-        if front:
-            summary["front"] = [label for label in front["heldout"] if label not in ("base", "zero")]
-    write_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    tracker.finish(summary)
+        summary = _summary(names, per_task[task_names[0]], tickets, run, out, fronts, front)
+    record = summary.to_dict()
+    write_atomic(out / "summary.json", json.dumps(record, indent=2) + "\n")
+    tracker.finish(record)
     order = {id(c): i for i, c in enumerate(result.candidates)}  # a search ticket's place in the search
     place = {ticket.id: order[id(c)] for ticket, c in zip(candidates, top, strict=True)}
     base_return = float(np.mean([r.ret for judged in per_task.values() for r in judged["base"].results]))
@@ -118,20 +121,19 @@ def shared(values) -> int | None:
     return distinct.pop() if len(distinct) == 1 else None
 
 
-def _pictures(cfg: SearchConfig, names: Names, summary: dict, result: SearchResult, place: dict[str, int],
-              validated: bool, base_return: float, out: Path) -> None:
+def _pictures(cfg: SearchConfig, names: Names, summary: Summary | MultitaskSummary, result: SearchResult,
+              place: dict[str, int], validated: bool, base_return: float, out: Path) -> None:
     """verdict.png (per arm, or per task and on average) and search.png, with the tickets the
     job validated and judged marked (`place`: ticket id -> its place in the search)."""
     title = f"{names.policy} on {names.task}"
-    if "average" in summary:
-        tasks_png(summary, out / "verdict.png",
-                  f"{names.policy}: one ticket for {len(summary['tasks'])} tasks")
-        judged = summary["tickets"]
+    if isinstance(summary, MultitaskSummary):
+        tasks_png(summary.verdict, out / "verdict.png",
+                  f"{names.policy}: one ticket for {len(summary.verdict.tasks)} tasks")
+        judged = summary.verdict.tickets
     else:
-        arms_png(arm_rows(summary["base"], summary["zero"], summary["tickets"]), out / "verdict.png", title,
-                 best=f"ticket {summary['best']['ticket_id']}")
-        judged = [t["ticket_id"] for t in summary["tickets"]]
-    span = summary["heldout_seeds"]
+        arms_png(to_dicts(summary.rows()), out / "verdict.png", title, best=f"ticket {summary.best.id}")
+        judged = [t.id for t in summary.tickets]
+    span = summary.run.heldout_seeds
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
                out / "search.png", search_title(cfg, names),
                validated=list(place.values()) if validated else [],
@@ -167,10 +169,10 @@ def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket], seed
 
 
 def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: SearchResult, seeds: tuple,
-           baselines: tuple, expand: Callable, max_steps: int, out: Path) -> tuple[dict, dict[str, dict]]:
+           baselines: tuple, expand: Callable, max_steps: int, out: Path) -> tuple[tuple[str, ...], dict]:
     """The Pareto front of the search's tickets for (objective, front objective), judged on the
-    held-out seeds; its tickets saved, front.json and front.png written. Returns the study and each
-    front ticket's front metadata by id."""
+    held-out seeds; its tickets saved, front.json and front.png written. Returns the front's ticket
+    ids and each one's front metadata by id."""
     search_seeds, heldout = seeds
     scored = {}
     for candidate in result.candidates:
@@ -189,12 +191,102 @@ def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: Search
         study = pareto_study(evaluator, scored, (cfg.objective, cfg.front_objective), max_steps=max_steps,
                              heldout=heldout, base=baselines[0], zero=baselines[1], save=save, out=out)
     write_atomic(out / "front.json", json.dumps(study, indent=2) + "\n")
-    return study, fronts
+    return tuple(label for label in study["heldout"] if label not in ("base", "zero")), fronts
 
 
-def arm_rows(base: dict, zero: dict, tickets: list[dict]) -> dict[str, dict]:
-    """Verdict rows as people read them: base, zero ticket, then each ticket by its id."""
-    return {"base": base, "zero ticket": zero} | {f"ticket {t['ticket_id']}": t for t in tickets}
+def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
+    """Verdict rows as people read them: base, zero ticket, then each ticket (`tickets` by id)."""
+    return {"base": base, "zero ticket": zero} | {f"ticket {t}": row for t, row in tickets.items()}
+
+
+@dataclass(frozen=True)
+class FoundTicket:
+    """A ticket the job judged: its id and file, its held-out verdict, its mean return on the search
+    and validation seeds (None: not scored there) and, if not the search's, where it came from."""
+
+    id: str
+    path: str
+    search_score: float | None
+    heldout: VerdictRow
+    validation_score: float | None = None
+    source: str | None = None  # "zero ticket" or "given: <ticket>"
+
+    @property
+    def name(self) -> str:
+        """The id, and what it is when it is the zero ticket."""
+        return self.id + (" (the zero ticket, w = 0)" if self.source == "zero ticket" else "")
+
+    def to_dict(self) -> dict:
+        validation = {k: v for k, v in (("validation_score", self.validation_score), ("source", self.source))
+                      if v is not None}
+        return self.heldout.to_dict() | validation | {"ticket_id": self.id, "ticket_path": self.path,
+                                                      "search_score": self.search_score}
+
+
+@dataclass(frozen=True)
+class SearchRun:
+    """What a summary says of the search: policy, method, seed, episodes spent, why it stopped, and
+    the first and last held-out seed of the verdict."""
+
+    policy: str
+    method: str
+    seed: int
+    search_episodes: int
+    stopped_because: str
+    heldout_seeds: tuple[int, int]
+
+    def to_dict(self) -> dict:
+        return {"policy": self.policy, "method": self.method, "seed": self.seed,
+                "search_episodes": self.search_episodes, "stopped_because": self.stopped_because,
+                "heldout_seeds": list(self.heldout_seeds)}
+
+
+@dataclass(frozen=True)
+class Summary:
+    """The job's result on one task: base, zero ticket and the tickets judged (best first, p-values
+    Holm-adjusted over them), and the ids on the Pareto front when there is one."""
+
+    task: str
+    run: SearchRun
+    base: VerdictRow
+    zero: VerdictRow
+    tickets: tuple[FoundTicket, ...]
+    front: tuple[str, ...] | None = None
+
+    @property
+    def best(self) -> FoundTicket:
+        return self.tickets[0]
+
+    @property
+    def p_value_note(self) -> str:
+        return p_value_note(len(self.tickets))
+
+    def rows(self) -> dict[str, VerdictRow]:
+        """The verdict rows as people read them (`arm_rows`)."""
+        return arm_rows(self.base, self.zero, {t.id: t.heldout for t in self.tickets})
+
+    def to_dict(self) -> dict:
+        """summary.json."""
+        front = {} if self.front is None else {"front": list(self.front)}
+        return {"task": self.task} | self.run.to_dict() | {
+            "base": self.base.to_dict(), "zero": self.zero.to_dict(), "best": self.best.to_dict(),
+            "tickets": [t.to_dict() for t in self.tickets], "p_value_note": self.p_value_note} | front
+
+
+@dataclass(frozen=True)
+class MultitaskSummary:
+    """The job's result on several tasks: the verdict per task and on average, and the search."""
+
+    verdict: MultitaskVerdict
+    run: SearchRun
+
+    @property
+    def p_value_note(self) -> str:
+        return p_value_note(len(self.verdict.tickets))
+
+    def to_dict(self) -> dict:
+        """summary.json."""
+        return self.verdict.to_dict() | self.run.to_dict() | {"p_value_note": self.p_value_note}
 
 
 @dataclass(frozen=True)
@@ -296,55 +388,46 @@ def _provenance(names: Names, shape: tuple[int, int], tasks: list[str], how: dic
                     "noise_shape": list(shape), "task": names.task} | how | several
 
 
-def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, span: list[int],
-                 fronts: dict[str, dict]) -> list[dict]:
+def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, span: tuple[int, int],
+                 fronts: dict[str, dict]) -> tuple[FoundTicket, ...]:
     """Save each ticket with its held-out result (and its place on the Pareto front, `fronts` by
-    ticket id, if it has one); entries best first (success, then p)."""
+    ticket id, if it has one); best first (success, then p)."""
     ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate, judged[t.id].p_vs_base))
-    entries = []
+    found = []
     for t in ranked:
-        t.metadata["heldout"] = judged[t.id].to_dict() | {"seeds": span}
+        row = judged[t.id].row()
+        t.metadata["heldout"] = row.to_dict() | {"seeds": list(span)}
         if t.id in fronts:
             t.metadata["front"] = fronts[t.id]
         path = t.save(out / "tickets" / f"{t.id}.safetensors")
-        validation = {k: t.metadata[k] for k in ("validation_score", "source") if k in t.metadata}
-        entries.append(judged[t.id].to_dict() | validation | {"ticket_id": t.id, "ticket_path": str(path),
-                                                              "search_score": t.metadata["search_score"]})
-    return entries
+        found.append(FoundTicket(t.id, str(path), t.metadata["search_score"], row,
+                                 t.metadata.get("validation_score"), t.metadata.get("source")))
+    return tuple(found)
 
 
-def _summary(cfg: SearchConfig, names: Names, judged: dict[str, Judged], tickets: list[Ticket],
-             result: SearchResult, span: list[int], out: Path, fronts: dict[str, dict]) -> dict:
+def _summary(names: Names, judged: dict[str, Judged], tickets: list[Ticket], run: SearchRun, out: Path,
+             fronts: dict[str, dict], front: tuple[str, ...] | None) -> Summary:
     """One task's verdict: p-values Holm-adjusted over the tickets, each ticket saved with its
     held-out result, the best first."""
     adjust_for_multiplicity(judged, [t.id for t in tickets])
-    entries = _save_ranked(tickets, judged, out, span, fronts)
-    return {
-        "task": names.task, "policy": names.policy, "method": cfg.method, "seed": cfg.seed,
-        "search_episodes": result.episodes_used, "stopped_because": result.stopped_because,
-        "heldout_seeds": span,
-        "base": judged["base"].to_dict(), "zero": judged["zero"].to_dict(),
-        "best": entries[0], "tickets": entries,
-        "p_value_note": p_value_note(len(entries)),
-    }
+    found = _save_ranked(tickets, judged, out, run.heldout_seeds, fronts)
+    return Summary(names.task, run, judged["base"].row(), judged["zero"].row(), found, front)
 
 
-def _multitask_summary(cfg: SearchConfig, names: Names, per_task: dict[str, dict[str, Judged]],
-                       tickets: list[Ticket], result: SearchResult, span: list[int], out: Path) -> dict:
+def _multitask_summary(cfg: SearchConfig, per_task: dict[str, dict[str, Judged]], tickets: list[Ticket],
+                       run: SearchRun, out: Path) -> MultitaskSummary:
     """Several tasks' verdict (`evaluation.multitask_verdict`), each ticket saved with its
     task-averaged and per-task held-out results."""
-    summary = multitask_verdict(per_task, [t.id for t in tickets], cfg.no_regression)
+    verdict = multitask_verdict(per_task, [t.id for t in tickets], cfg.no_regression)
     for ticket in tickets:
-        per_task_rows = {task: summary["tasks"][task][ticket.id] for task in per_task}
-        ticket.metadata["heldout"] = summary["average"][ticket.id] | {"seeds": span,
-                                                                      "per_task": per_task_rows}
+        per_task_rows = {task: verdict.tasks[task][ticket.id].to_dict() for task in per_task}
+        ticket.metadata["heldout"] = verdict.average[ticket.id].to_dict() | {
+            "seeds": list(run.heldout_seeds), "per_task": per_task_rows}
         ticket.save(out / "tickets" / f"{ticket.id}.safetensors")
-    return summary | {"policy": names.policy, "method": cfg.method, "seed": cfg.seed,
-                      "search_episodes": result.episodes_used, "stopped_because": result.stopped_because,
-                      "heldout_seeds": span, "p_value_note": p_value_note(len(tickets))}
+    return MultitaskSummary(verdict, run)
 
 
-def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict[str, dict]:
+def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict[str, VerdictRow]:
     """Base, zero ticket and each ticket on the held-out `cfg.seeds`: one-sided paired p-values vs
     base and vs zero, Holm-adjusted over the tickets; episodes kept in `store` if given. The task,
     `max_steps` and `success` default to those the tickets were found under; a ticket found for
@@ -384,10 +467,10 @@ def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict
         with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
             judged = judge(evaluator, sources, seeds, Gaussian(cfg.seed))
     adjust_for_multiplicity(judged, [label for label in sources if label != "zero"])
-    rows = {label: j.to_dict() for label, j in judged.items()}
+    rows = {label: j.row() for label, j in judged.items()}
     if cfg.mixture:
         for label, source in tqdm(reseeded.items(), desc="diversity", unit="arm"):
-            rows[label]["diversity"] = action_spread(policy, task, source, seeds[:10])
+            rows[label] = replace(rows[label], diversity=action_spread(policy, task, source, seeds[:10]))
     return rows
 
 

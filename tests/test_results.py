@@ -1,0 +1,58 @@
+"""The job's results are typed; summary.json, ticket metadata and `evaluate --json` are their dicts."""
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from goldenticket.config import SearchConfig
+from goldenticket.evaluation import judged_arms
+from goldenticket.rollout import NONFINITE, EpisodeResult
+from goldenticket.tickets import Ticket
+from goldenticket.workflow import Summary, find_golden_tickets
+
+HERE = Path(__file__).parent
+
+
+def _episodes(successes: str, nonfinite: int = 0) -> list[EpisodeResult]:
+    return [EpisodeResult(seed, s == "1", float(s == "1"), 5, 0.0,
+                          cause=NONFINITE if seed < nonfinite else None) for seed, s in enumerate(successes)]
+
+
+def test_a_verdict_row_writes_the_keys_of_its_tests_in_order():
+    judged = judged_arms({"base": _episodes("0000011111"), "zero": _episodes("0001111111"),
+                          "t": _episodes("1111111111")})
+    base, zero, ticket = (judged[label].row() for label in ("base", "zero", "t"))
+    rate = ["success_rate", "ci_low", "ci_high", "n", "nonfinite_episodes"]
+    assert list(base.to_dict()) == rate
+    assert list(zero.to_dict()) == [*rate, "p_vs_base", "golden", "verdict"]
+    assert list(ticket.to_dict()) == [*rate, "p_vs_base", "golden", "verdict", "p_vs_zero"]
+    assert ticket.golden and ticket.to_dict()["verdict"] == "golden" and ticket.to_dict()["golden"] is True
+    assert not zero.golden and zero.to_dict()["verdict"] == "not golden"
+    assert list(replace(ticket, diversity=0.5).to_dict())[-1] == "diversity"
+    assert judged_arms({"base": _episodes("0011", nonfinite=3)})["base"].row().nonfinite == 3
+
+
+@pytest.mark.slow
+def test_the_job_returns_its_summary_typed_and_writes_it_as_summary_json(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(HERE))
+    cfg = SearchConfig("byo_example:make_policy", "byo_example:make_env", method="rs", budget=40,
+                       search_seeds=4, validation_seeds=6, heldout=20, top_k=2, workers=1, max_steps=30,
+                       front_objective="speed")
+    summary = find_golden_tickets(cfg, tmp_path)
+    assert isinstance(summary, Summary)
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written == summary.to_dict()
+    assert list(written) == ["task", "policy", "method", "seed", "search_episodes", "stopped_because",
+                             "heldout_seeds", "base", "zero", "best", "tickets", "p_value_note", "front"]
+    assert summary.best == summary.tickets[0] and written["best"] == summary.best.to_dict()
+    assert list(summary.best.to_dict())[-3:] == ["ticket_id", "ticket_path", "search_score"]
+    for found in summary.tickets:
+        ticket = Ticket.load(found.path)
+        assert ticket.id == found.id and found.validation_score is not None
+        seeds = list(summary.run.heldout_seeds)
+        assert ticket.metadata["heldout"] == found.heldout.to_dict() | {"seeds": seeds}
+    assert set(summary.front) <= {p.stem for p in (tmp_path / "tickets").iterdir()}
+    assert summary.base.rate.n == summary.zero.rate.n == 20
+    assert summary.run.policy == "byo_example:make_policy"
