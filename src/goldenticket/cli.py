@@ -344,8 +344,9 @@ def _evaluate(args) -> int:
     from goldenticket.plots import arms_png
     from goldenticket.policies import find_ticket
     from goldenticket.report import verdict_text
+    from goldenticket.results import arm_rows
     from goldenticket.tickets import Ticket
-    from goldenticket.workflow import arm_rows, evaluate_tickets, found_under
+    from goldenticket.workflow import evaluate_tickets, found_under
 
     cfg = make(EvaluateConfig, _options(args, EvaluateConfig))
     paths = [find_ticket(ref) for ref in cfg.tickets]

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from goldenticket.evaluation import VerdictRow
-    from goldenticket.workflow import MultitaskSummary
+    from goldenticket.results import MultitaskSummary
 
 
 def p_vs_base(row: dict) -> float | None:
@@ -35,7 +35,7 @@ def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
 
 
 def verdict_text(rows: dict[str, VerdictRow], best: VerdictRow, name: str, note: str) -> str:
-    """The verdict table (rows from `workflow.arm_rows`), a one-line plain verdict on the best
+    """The verdict table (rows from `results.arm_rows`), a one-line plain verdict on the best
     ticket (`best`, called `name`), and how to read the p-values (and the non-finite column, when
     shown)."""
     base = rows["base"].rate.success_rate

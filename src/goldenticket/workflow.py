@@ -16,18 +16,17 @@ from goldenticket.errors import OptionError, UserError
 from goldenticket.evaluation import (
     Evaluator,
     Judged,
-    MultitaskVerdict,
     VerdictRow,
     adjust_for_multiplicity,
     judge,
     multitask_verdict,
-    p_value_note,
     to_dicts,
 )
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.plots import arms_png, search_png, tasks_png
 from goldenticket.policies import NoisePolicy, find_ticket, for_task, identity, load_policy, policy_label
+from goldenticket.results import FoundTicket, MultitaskSummary, SearchRun, Summary
 from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
@@ -192,101 +191,6 @@ def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: Search
                              heldout=heldout, base=baselines[0], zero=baselines[1], save=save, out=out)
     write_atomic(out / "front.json", json.dumps(study, indent=2) + "\n")
     return tuple(label for label in study["heldout"] if label not in ("base", "zero")), fronts
-
-
-def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
-    """Verdict rows as people read them: base, zero ticket, then each ticket (`tickets` by id)."""
-    return {"base": base, "zero ticket": zero} | {f"ticket {t}": row for t, row in tickets.items()}
-
-
-@dataclass(frozen=True)
-class FoundTicket:
-    """A ticket the job judged: its id and file, its held-out verdict, its mean return on the search
-    and validation seeds (None: not scored there) and, if not the search's, where it came from."""
-
-    id: str
-    path: str
-    search_score: float | None
-    heldout: VerdictRow
-    validation_score: float | None = None
-    source: str | None = None  # "zero ticket" or "given: <ticket>"
-
-    @property
-    def name(self) -> str:
-        """The id, and what it is when it is the zero ticket."""
-        return self.id + (" (the zero ticket, w = 0)" if self.source == "zero ticket" else "")
-
-    def to_dict(self) -> dict:
-        validation = {k: v for k, v in (("validation_score", self.validation_score), ("source", self.source))
-                      if v is not None}
-        return self.heldout.to_dict() | validation | {"ticket_id": self.id, "ticket_path": self.path,
-                                                      "search_score": self.search_score}
-
-
-@dataclass(frozen=True)
-class SearchRun:
-    """What a summary says of the search: policy, method, seed, episodes spent, why it stopped, and
-    the first and last held-out seed of the verdict."""
-
-    policy: str
-    method: str
-    seed: int
-    search_episodes: int
-    stopped_because: str
-    heldout_seeds: tuple[int, int]
-
-    def to_dict(self) -> dict:
-        return {"policy": self.policy, "method": self.method, "seed": self.seed,
-                "search_episodes": self.search_episodes, "stopped_because": self.stopped_because,
-                "heldout_seeds": list(self.heldout_seeds)}
-
-
-@dataclass(frozen=True)
-class Summary:
-    """The job's result on one task: base, zero ticket and the tickets judged (best first, p-values
-    Holm-adjusted over them), and the ids on the Pareto front when there is one."""
-
-    task: str
-    run: SearchRun
-    base: VerdictRow
-    zero: VerdictRow
-    tickets: tuple[FoundTicket, ...]
-    front: tuple[str, ...] | None = None
-
-    @property
-    def best(self) -> FoundTicket:
-        return self.tickets[0]
-
-    @property
-    def p_value_note(self) -> str:
-        return p_value_note(len(self.tickets))
-
-    def rows(self) -> dict[str, VerdictRow]:
-        """The verdict rows as people read them (`arm_rows`)."""
-        return arm_rows(self.base, self.zero, {t.id: t.heldout for t in self.tickets})
-
-    def to_dict(self) -> dict:
-        """summary.json."""
-        front = {} if self.front is None else {"front": list(self.front)}
-        return {"task": self.task} | self.run.to_dict() | {
-            "base": self.base.to_dict(), "zero": self.zero.to_dict(), "best": self.best.to_dict(),
-            "tickets": [t.to_dict() for t in self.tickets], "p_value_note": self.p_value_note} | front
-
-
-@dataclass(frozen=True)
-class MultitaskSummary:
-    """The job's result on several tasks: the verdict per task and on average, and the search."""
-
-    verdict: MultitaskVerdict
-    run: SearchRun
-
-    @property
-    def p_value_note(self) -> str:
-        return p_value_note(len(self.verdict.tickets))
-
-    def to_dict(self) -> dict:
-        """summary.json."""
-        return self.verdict.to_dict() | self.run.to_dict() | {"p_value_note": self.p_value_note}
 
 
 @dataclass(frozen=True)
