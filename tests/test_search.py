@@ -1,5 +1,7 @@
 """Search optimizers and driver on a synthetic noisy objective with a hidden optimum."""
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -65,6 +67,7 @@ class Stuck:
         pass
 
 
+@functools.cache  # deterministic: the bars' baselines (RS, the stuck search) run once per objective
 def closeness_after_search(method: str, kind: str, budget: int = 25_000) -> float:
     """Mean over 3 runs of the top-5 tickets' closeness (0 = at w*, 1 = like random tickets)."""
     scores = []
