@@ -4,7 +4,6 @@ import multiprocessing as mp
 
 import gymnasium as gym
 import numpy as np
-import torch
 
 from goldenticket.tasks.metaworld import MetaWorldEnv
 
@@ -223,36 +222,3 @@ def make_raising_fingerprint_policy():
 
 def make_int_fingerprint_policy():
     return BadFingerprint(lambda: 42)
-
-
-class TinyDenoiser(torch.nn.Module):
-    """A denoising network with random weights (seed 0) on [noisy chunk, timestep, pos, goal]."""
-
-    def __init__(self, horizon: int = 4, action_dim: int = 2):
-        super().__init__()
-        with torch.random.fork_rng():
-            torch.manual_seed(0)
-            self.net = torch.nn.Sequential(torch.nn.Linear(horizon * action_dim + 5, 64), torch.nn.GELU(),
-                                           torch.nn.Linear(64, horizon * action_dim))
-
-    def forward(self, x, t, obs):
-        inputs = [x.flatten(1), t[:, None].float() / 1000, obs["pos"], obs["goal"]]
-        return self.net(torch.cat(inputs, 1)).view_as(x)
-
-
-def make_ddim_policy(prediction_type: str = "epsilon"):
-    from diffusers import DDIMScheduler
-
-    from goldenticket.policies.diffusers import SchedulerPolicy
-
-    scheduler = DDIMScheduler(num_train_timesteps=100, prediction_type=prediction_type)
-    return SchedulerPolicy(TinyDenoiser(), scheduler, noise_shape=(4, 2), n_exec=2, steps=5)
-
-
-def make_flow_policy():
-    from diffusers import FlowMatchEulerDiscreteScheduler
-
-    from goldenticket.policies.diffusers import SchedulerPolicy
-
-    return SchedulerPolicy(TinyDenoiser(), FlowMatchEulerDiscreteScheduler(), noise_shape=(4, 2),
-                           n_exec=2, steps=5)

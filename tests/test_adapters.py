@@ -10,10 +10,10 @@ import goldenticket
 
 pytest.importorskip("diffusers")
 sys.path.insert(0, str(Path(__file__).parent))
-import byo_example  # noqa: E402
+import byo_diffusers  # noqa: E402
 
-POLICIES = {f"ddim {p}": lambda p=p: byo_example.make_ddim_policy(p)
-            for p in ("epsilon", "sample", "v_prediction")} | {"flow": byo_example.make_flow_policy}
+POLICIES = {f"ddim {p}": lambda p=p: byo_diffusers.make_ddim_policy(p)
+            for p in ("epsilon", "sample", "v_prediction")} | {"flow": byo_diffusers.make_flow_policy}
 
 
 @pytest.mark.parametrize("make", POLICIES.values(), ids=POLICIES.keys())
@@ -31,7 +31,7 @@ def test_scheduler_policy_keeps_the_noise_policy_contract(make):
 
 @pytest.mark.slow
 def test_scheduler_policies_run_through_workers_by_import_string():
-    for name in ("byo_example:make_ddim_policy", "byo_example:make_flow_policy"):
+    for name in ("byo_diffusers:make_ddim_policy", "byo_diffusers:make_flow_policy"):
         rows = goldenticket.evaluate(name, "byo_example:make_env", seeds=range(1_000_000, 1_000_006),
                                      max_steps=20, workers=2)
         assert rows["base"]["n"] == 6 and {"base", "zero"} == set(rows)
