@@ -6,7 +6,6 @@ import re
 import sqlite3
 import subprocess
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -31,21 +30,21 @@ def _cli(*argv: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-def test_search_and_evaluate_from_the_cli_resume_and_agree_with_the_api(tmp_path):
+def test_search_and_evaluate_from_the_cli_resume_and_agree_with_the_api(tmp_path, capsys):
+    sys.path.insert(0, str(HERE))
     out = tmp_path / "cli"
-    first = _cli(*SEARCH, "--workers", "2", "--out", str(out))
-    assert first.returncode == 0, first.stderr
+    assert main([*SEARCH, "--workers", "2", "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["base"]["n"] == 50 and summary["best"]["golden"]
-    assert _cli(*SEARCH, "--workers", "1", "--out", str(out)).returncode == 0  # resumes
+    assert main([*SEARCH, "--workers", "1", "--out", str(out)]) == 0  # resumes
     assert json.loads((out / "summary.json").read_text()) == summary
     ticket = summary["best"]["ticket_path"]
-    evaluated = _cli("evaluate", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env",
-                     "--max-steps", "30", "--ticket", ticket, "--seeds", "1000100:1000200",
-                     "--plot", str(tmp_path / "e.png"))
-    assert evaluated.returncode == 0 and "Golden ticket" in evaluated.stdout, evaluated.stderr  # fresh seeds
+    capsys.readouterr()
+    assert main(["evaluate", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env",
+                 "--max-steps", "30", "--ticket", ticket, "--seeds", "1000100:1000200",
+                 "--plot", str(tmp_path / "e.png")]) == 0
+    assert "Golden ticket" in capsys.readouterr().out  # on fresh seeds
 
-    sys.path.insert(0, str(HERE))
     api = goldenticket.search("byo_example:make_policy", "byo_example:make_env", tmp_path / "api",
                               max_steps=30, budget=400, search_seeds=20, heldout=50, top_k=2, workers=1)
     assert [t["ticket_id"] for t in api["tickets"]] == [t["ticket_id"] for t in summary["tickets"]]
@@ -192,13 +191,11 @@ def test_a_fault_in_the_users_code_is_one_line_naming_it(capsys, fault):
 def test_a_fault_in_a_worker_process_is_the_same_line_and_verbose_shows_its_traceback(capsys):
     policy = ("--policy", "byo_example:make_raising_policy")
     here = _error_line(capsys, _evaluate(*policy))
-    with ThreadPoolExecutor(2) as pool:
-        in_workers, verbose = pool.map(lambda a: _cli(*a), [_evaluate(*policy, "--workers", "2"),
-                                                             ["--verbose", *_evaluate(*policy)]])
-    assert in_workers.returncode == 2 and "Traceback" not in in_workers.stderr, in_workers.stderr
-    assert in_workers.stderr.splitlines()[-1] == here
-    assert verbose.returncode == 2 and verbose.stderr.splitlines()[-1] == here
-    assert "Traceback" in verbose.stderr and 'return obs["velocity"]' in verbose.stderr
+    assert _error_line(capsys, _evaluate(*policy, "--workers", "2")) == here
+    assert main(["--verbose", *_evaluate(*policy)]) == 2
+    verbose = capsys.readouterr().err
+    assert verbose.splitlines()[-1] == here
+    assert "Traceback" in verbose and 'return obs["velocity"]' in verbose
 
 
 @pytest.mark.slow
@@ -234,16 +231,14 @@ def test_a_policy_always_non_finite_stops_at_its_first_heldout_shard(capsys, tmp
 
 
 @pytest.mark.slow
-def test_an_env_unseeded_only_in_pool_workers_stops_the_run_in_one_line(tmp_path):
+def test_an_env_unseeded_only_in_pool_workers_stops_the_run_in_one_line(tmp_path, capsys):
     """It passes the seed checks of one process and of a spawned one; the episodes' own initial
     states, checked as they come back from the workers, give it away."""
     argv = ["search", "--policy", "byo_example:make_policy", "--task",
             "byo_example:make_unseeded_in_pools_env", "--max-steps", "30", "--budget", "40",
             "--heldout", "20", "--validation-seeds", "0", "--top-k", "1"]
-    with ThreadPoolExecutor(2) as pool:
-        one, two = pool.map(lambda w: _cli(*argv, "--workers", w, "--out", str(tmp_path / w)), ["1", "2"])
-    assert one.returncode == 0, one.stderr  # in one process its seeds are kept
-    errors = [line for line in two.stderr.splitlines() if "error" in line]
-    assert two.returncode == 2 and len(errors) == 1 and "Traceback" not in two.stderr, two.stderr
-    assert re.search(r"reset\(seed=100000\d+\) does not fix the initial state in worker processes", errors[0])
+    sys.path.insert(0, str(HERE))
+    assert main([*argv, "--workers", "1", "--out", str(tmp_path / "1")]) == 0  # one process keeps its seeds
+    error = _error_line(capsys, [*argv, "--workers", "2", "--out", str(tmp_path / "2")])
+    assert re.search(r"reset\(seed=100000\d+\) does not fix the initial state in worker processes", error)
     assert not (tmp_path / "2" / "summary.json").exists()
