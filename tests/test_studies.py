@@ -19,14 +19,14 @@ def _tickets(tmp_path, n: int) -> list[str]:
 
 @pytest.mark.slow
 def test_a_mixture_arm_is_judged_and_spreads_between_tickets_and_base(tmp_path, capsys):
-    args = ["evaluate", "--policy", POLICY, "--task", TASK, "--seeds", "1000000:1000012", "--max-steps", "40",
+    args = ["evaluate", "--policy", POLICY, "--task", TASK, "--seeds", "1000000:1000006", "--max-steps", "40",
             "--workers", "1", "--plot", str(tmp_path / "e.png"), "--mixture", "--epsilon", "0.2", "--json"]
     for ticket in _tickets(tmp_path, 2):
         args += ["--ticket", ticket]
     assert main(args) == 0
     rows = json.loads(capsys.readouterr().out)
     assert set(rows) == {"base", "zero", "mixture", *(Ticket.load(t).id for t in _tickets(tmp_path, 2))}
-    assert rows["mixture"]["n"] == 12 and "p_vs_base" in rows["mixture"]
+    assert rows["mixture"]["n"] == 6 and "p_vs_base" in rows["mixture"]
     tickets = [r["diversity"] for label, r in rows.items() if label not in ("base", "mixture")]
     assert tickets == [0.0, 0.0, 0.0]  # constant noise, deterministic policy and env
     assert rows["base"]["diversity"] > rows["mixture"]["diversity"] > 0
@@ -46,7 +46,7 @@ def test_mixture_options_are_checked(tmp_path, capsys):
 def _search(tmp_path, subspace: str) -> int:
     return main(["search", "--policy", POLICY, "--task", TASK, "--method", "rs", "--budget", "12",
                  "--search-seeds", "3", "--heldout", "4", "--top-k", "1", "--max-steps", "30",
-                 "--workers", "1", "--subspace", subspace,
+                 "--validation-seeds", "0", "--workers", "1", "--subspace", subspace,
                  "--out", str(tmp_path / subspace.replace(":", "-"))])
 
 
@@ -82,7 +82,8 @@ def test_a_two_objective_search_writes_the_front_and_a_policy_switches_along_it(
     out = tmp_path / "front"
     assert main(["search", "--policy", POLICY, "--task", TASK, "--method", "rs", "--budget", "24",
                  "--search-seeds", "3", "--heldout", "6", "--top-k", "1", "--max-steps", "40",
-                 "--workers", "1", "--objective", "success", "--front-objective", "speed",
+                 "--validation-seeds", "0", "--workers", "1", "--objective", "success",
+                 "--front-objective", "speed",
                  "--out", str(out)]) == 0
     assert "Pareto front (success vs speed)" in capsys.readouterr().out
     study = json.loads((out / "front.json").read_text())
