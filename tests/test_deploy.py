@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import goldenticket
+from goldenticket.cli import main
 from goldenticket.errors import UserError
 from goldenticket.policies import TicketedPolicy, deploy, identity, load_policy
 from goldenticket.tasks import get_task
@@ -90,31 +91,32 @@ def test_one_policy_has_one_identity_from_the_cli_and_the_api(mine, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_setting_that_contradicts_the_tickets_is_refused_with_both_values(mine, tmp_path):
+def test_a_setting_that_contradicts_the_tickets_is_refused_with_both_values(mine, tmp_path, capsys):
     summary = goldenticket.search("mine:make_policy", "mine:make_env", tmp_path / "run", max_steps=30,
                                   budget=40, search_seeds=10, heldout=10, top_k=1, validation_seeds=0,
                                   workers=1)
     ticket = summary["best"]["ticket_path"]
     argv = ["evaluate", "--policy", "mine:make_policy", "--ticket", ticket, "--seeds", "1000000:1000010",
             "--workers", "1", "--max-steps", "1000"]
-    refused = _cli(tmp_path, *argv)
-    assert refused.returncode == 2 and refused.stderr.count("\n") == 1, refused.stderr
-    assert "--max-steps 1000" in refused.stderr and "--max-steps 30" in refused.stderr
-    assert _cli(tmp_path, *argv, "--allow-transfer").returncode == 0
+    capsys.readouterr()
+    assert main(argv) == 2
+    refused = capsys.readouterr().err
+    assert refused.count("\n") == 1 and "--max-steps 1000" in refused and "--max-steps 30" in refused, refused
+    assert main([*argv, "--allow-transfer"]) == 0
     with pytest.raises(UserError, match="give task$"):  # a ticket made by hand names no task
         goldenticket.evaluate("mine:make_policy", None, [], range(1_000_000, 1_000_010))
 
 
 @pytest.mark.slow
-def test_options_are_checked_before_any_episode_or_store_write(tmp_path):
+def test_options_are_checked_before_any_episode_or_store_write(tmp_path, capsys):
     out = tmp_path / "run"
-    done = _cli(tmp_path, "search", "--policy", "metaworld/reach-v3/flow", "--task", "metaworld/reach-v3",
-                "--validation-seeds", "1000001", "--out", str(out))
-    assert done.returncode == 2 and "validation" in done.stderr and done.stderr.count("\n") == 1
-    assert not out.exists()
-    done = _cli(tmp_path, "search", "--policy", "metaworld/reach-v3/flow", "--task", "metaworld/reach-v3",
-                "--workers", "1000", "--out", str(out))
-    assert done.returncode == 2 and "--workers" in done.stderr and not out.exists()
+    search = ["search", "--policy", "metaworld/reach-v3/flow", "--task", "metaworld/reach-v3",
+              "--out", str(out)]
+    assert main([*search, "--validation-seeds", "1000001"]) == 2
+    err = capsys.readouterr().err
+    assert "validation" in err and err.count("\n") == 1 and not out.exists()
+    assert main([*search, "--workers", "1000"]) == 2
+    assert "--workers" in capsys.readouterr().err and not out.exists()
 
 
 @pytest.mark.slow
