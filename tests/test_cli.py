@@ -23,7 +23,7 @@ def policy_dir(tiny_policies, tmp_path_factory):
 def _search(policy_dir, out, workers):
     return main(["search", "--policy", policy_dir, "--task", TASK, "--method", "cem-racing",
                  "--budget", "12", "--search-seeds", "5", "--validation-seeds", "3", "--heldout", "4",
-                 "--top-k", "2", "--workers", str(workers), "--out", str(out)])
+                 "--top-k", "2", "--max-steps", "50", "--workers", str(workers), "--out", str(out)])
 
 
 @pytest.fixture(scope="module")
