@@ -21,7 +21,8 @@ from goldenticket.tasks import get_task, seeds_in
 
 HERE = Path(__file__).parent
 SEARCH = ["search", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env",
-          "--max-steps", "30", "--budget", "400", "--search-seeds", "20", "--heldout", "50", "--top-k", "2"]
+          "--max-steps", "30", "--budget", "400", "--search-seeds", "20", "--validation-seeds", "20",
+          "--heldout", "50", "--top-k", "2"]
 
 
 def _cli(*argv: str) -> subprocess.CompletedProcess:
@@ -41,12 +42,13 @@ def test_search_and_evaluate_from_the_cli_resume_and_agree_with_the_api(tmp_path
     ticket = summary["best"]["ticket_path"]
     capsys.readouterr()
     assert main(["evaluate", "--policy", "byo_example:make_policy", "--task", "byo_example:make_env",
-                 "--max-steps", "30", "--ticket", ticket, "--seeds", "1000100:1000200",
+                 "--max-steps", "30", "--ticket", ticket, "--seeds", "1000100:1000200", "--workers", "1",
                  "--plot", str(tmp_path / "e.png")]) == 0
     assert "Golden ticket" in capsys.readouterr().out  # on fresh seeds
 
     api = goldenticket.search("byo_example:make_policy", "byo_example:make_env", tmp_path / "api",
-                              max_steps=30, budget=400, search_seeds=20, heldout=50, top_k=2, workers=1)
+                              max_steps=30, budget=400, search_seeds=20, validation_seeds=20, heldout=50,
+                              top_k=2, workers=1)
     assert [t["ticket_id"] for t in api["tickets"]] == [t["ticket_id"] for t in summary["tickets"]]
     rows = goldenticket.evaluate("byo_example:make_policy", "byo_example:make_env", [ticket],
                                  range(1000100, 1000110), max_steps=30, workers=1)
@@ -58,7 +60,7 @@ def test_the_api_takes_objects_and_a_success_predicate(tmp_path):
     sys.path.insert(0, str(HERE))
     import byo_example
 
-    options = dict(max_steps=30, budget=160, search_seeds=20, heldout=30, top_k=1)
+    options = dict(max_steps=30, budget=160, search_seeds=20, validation_seeds=20, heldout=30, top_k=1)
     by_name = goldenticket.search("byo_example:make_policy", "byo_example:make_env", tmp_path / "n",
                                   workers=1, **options)
     by_object = goldenticket.search(byo_example.BiasedController(), byo_example.make_silent_env,
