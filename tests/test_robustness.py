@@ -1,6 +1,8 @@
 """Runs killed, interrupted, doubled, starved of disk or fed damaged files: nothing computed is lost,
 and every failure is one clear line with exit code 2 (or 128 + signal for a stop)."""
 
+import contextlib
+import io
 import json
 import re
 import shutil
@@ -26,15 +28,16 @@ def _command(out: Path, workers: int = 1) -> list[str]:
     return [sys.executable, "-m", "goldenticket.cli", *SEARCH, "--workers", str(workers), "--out", str(out)]
 
 
+def _here(command: list[str]) -> subprocess.CompletedProcess:
+    """`command` run by the CLI's main in this process: the runs that are neither stopped nor doubled."""
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = main(command[3:])  # past `python -m goldenticket.cli`
+    return subprocess.CompletedProcess(command, code, stdout.getvalue(), stderr.getvalue())
+
+
 def _run(out: Path, workers: int = 1) -> subprocess.CompletedProcess:
-    return subprocess.run(_command(out, workers), capture_output=True, text=True, timeout=300)
-
-
-def _in_process(command: list[str], capsys) -> subprocess.CompletedProcess:
-    """`command` run by the CLI's main in this process, for the runs whose point is not the process."""
-    capsys.readouterr()
-    code = main(command[3:])  # past `python -m goldenticket.cli`
-    return subprocess.CompletedProcess(command, code, *capsys.readouterr())
+    return _here(_command(out, workers))
 
 
 def _numbers(out: Path) -> dict:
@@ -166,25 +169,25 @@ def test_disk_filling_mid_run_is_one_line_and_a_rerun_resumes(reference, disk):
 
 
 @pytest.mark.slow
-def test_read_only_out_is_one_line(disk, capsys):
+def test_read_only_out_is_one_line(disk):
     subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
-    assert "Read-only" in _one_error_line(_in_process(_command(disk / "run"), capsys))
+    assert "Read-only" in _one_error_line(_run(disk / "run"))
 
 
 @pytest.mark.slow
-def test_out_that_is_or_lies_under_a_file_is_one_line(tmp_path, capsys):
+def test_out_that_is_or_lies_under_a_file_is_one_line(tmp_path):
     (tmp_path / "file").write_text("x")
-    assert "is a file" in _one_error_line(_in_process(_command(tmp_path / "file"), capsys))
-    assert "Not a directory" in _one_error_line(_in_process(_command(tmp_path / "file" / "run"), capsys))
+    assert "is a file" in _one_error_line(_run(tmp_path / "file"))
+    assert "Not a directory" in _one_error_line(_run(tmp_path / "file" / "run"))
 
 
 @pytest.mark.slow
-def test_damaged_store_is_one_line(tmp_path, reference, capsys):
+def test_damaged_store_is_one_line(tmp_path, reference):
     store = tmp_path / "run.sqlite"
     data = bytearray((reference["out"] / "run.sqlite").read_bytes())
     data[2 * 4096 : 3 * 4096] = b"\xff" * 4096  # the third page: the episodes table
     store.write_bytes(bytes(data))
-    assert "move it away" in _one_error_line(_in_process(_command(tmp_path), capsys))
+    assert "move it away" in _one_error_line(_run(tmp_path))
 
 
 @pytest.mark.slow
@@ -192,12 +195,12 @@ def test_damaged_store_is_one_line(tmp_path, reference, capsys):
     ("UPDATE episodes SET ret = 'lots' WHERE rowid = 1", "non-numeric ret"),
     ("UPDATE config SET value = 'not json'", "config is not JSON"),
 ], ids=["return", "config"])
-def test_a_store_value_of_the_wrong_type_is_one_line(reference, tmp_path, capsys, damage, says):
+def test_a_store_value_of_the_wrong_type_is_one_line(reference, tmp_path, damage, says):
     store = tmp_path / "run.sqlite"
     shutil.copy(reference["out"] / "run.sqlite", store)
     with sqlite3.connect(store) as con:
         con.execute(damage)
-    line = _one_error_line(_in_process(_command(tmp_path), capsys))
+    line = _one_error_line(_run(tmp_path))
     assert says in line and f"{store}:" in line, line
 
 
@@ -217,7 +220,7 @@ def test_a_truncated_policy_file_is_one_line(tmp_path, capsys):
 @pytest.mark.parametrize("options", [{"--budget": "3", "--search-seeds": "20"},  # racing's 1st tier: 4
                                      {"--stop-after-perfect": "-1"}, {"--workers": "0"},
                                      {"--max-steps": "0"}, {"--seed": "-1"}], ids=str)
-def test_options_are_checked_before_any_episode(tmp_path, capsys, options):
+def test_options_are_checked_before_any_episode(tmp_path, options):
     out = tmp_path / "run"
     command = _command(out)
     for option, value in options.items():
@@ -225,5 +228,5 @@ def test_options_are_checked_before_any_episode(tmp_path, capsys, options):
             command[command.index(option) + 1] = value
         else:
             command += [option, value]
-    _one_error_line(_in_process(command, capsys))
+    _one_error_line(_here(command))
     assert not out.exists()
