@@ -15,7 +15,9 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+from dataclasses import asdict
 
+from goldenticket.config import TrainConfig
 from goldenticket.policies import BUNDLED_DIR, MLPPolicy
 from goldenticket.tasks import get_task
 from goldenticket.train import DemoStyle, build_multitask_policy, build_policy, measure, write_card
@@ -47,8 +49,9 @@ def recipe(task: str) -> tuple[int, DemoStyle]:
 def build(job: tuple[str, str]) -> str:
     task, kind = job
     demos, style = recipe(task)
-    card = build_policy(f"metaworld/{task}", kind, BUNDLED_DIR / "metaworld" / task / kind,
-                        n_demos=demos, style=style, steps=TRAIN_STEPS, denoise_steps=TRAINED_STEPS[kind])
+    cfg = TrainConfig(task=f"metaworld/{task}", kind=kind, demos=demos, steps=TRAIN_STEPS,
+                      denoise_steps=TRAINED_STEPS[kind], **asdict(style))
+    card = build_policy(cfg, BUNDLED_DIR / "metaworld" / task / kind)
     base, zero = card["base"]["success_rate"], card["zero"]["success_rate"]
     return f"{card['policy']}: base {base:.1%}, zero {zero:.1%}"
 

@@ -31,10 +31,11 @@ import numpy as np
 import torch
 from results_files import write_results
 
+from goldenticket.config import EngineOptions
 from goldenticket.evaluation import Evaluator
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
-from goldenticket.rollout import Engine, Episode, rollout
+from goldenticket.rollout import Episode, rollout
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
 from goldenticket.ticket_search import make_optimizer, run_search
@@ -121,16 +122,16 @@ def search_curve(task_name: str, method: str, workers: int) -> list[dict]:
     curve = []
     for budget in BUDGETS:
         with tempfile.TemporaryDirectory() as tmp, RunStore(Path(tmp) / "run.sqlite") as store, \
-                Engine(policy_name, task, workers=workers, loaded=policy) as engine:
+                Evaluator.open(policy_name, task, EngineOptions(workers=workers), store,
+                               loaded=policy) as evaluator:
             start = time.perf_counter()
             optimizer = make_optimizer(method, policy.noise_shape, seeds_in("search", SEARCH_SEEDS),
                                        np.random.default_rng(0))
-            result = run_search(optimizer, query_evaluator(Evaluator(engine, store), policy.fingerprint()),
-                                budget=budget)
+            result = run_search(optimizer, query_evaluator(evaluator, policy.fingerprint()), budget=budget)
             seconds = time.perf_counter() - start
             env_steps = sum(row.length for row in store.episodes())
             top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]
-            judged = Evaluator(engine).run([("top", Constant(top.ticket), seeds_in("heldout", HELDOUT))])[0]
+            judged = evaluator.run([("top", Constant(top.ticket), seeds_in("heldout", HELDOUT))])[0]
         curve.append({"budget": budget, "seconds": seconds, "env_steps": env_steps,
                       "success": float(np.mean([r.success for r in judged]))})
         print(f"{method} {task_name}: {curve[-1]}", flush=True)

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import goldenticket
+from goldenticket.evaluation import to_dicts
 from goldenticket.report import p_vs_base, rate_text
 
 HERE = Path(__file__).parent
@@ -37,11 +38,13 @@ def main() -> None:
     summary = goldenticket.search(fetch_push.make_policy(), fetch_push.make_env, args.runs,
                                   budget=args.budget, search_seeds=args.search_seeds, workers=args.workers)
     searched = time.perf_counter()
-    fresh = goldenticket.evaluate(fetch_push.make_policy(), fetch_push.make_env,
-                                  [summary["best"]["ticket_path"]], FRESH, workers=args.workers)
+    fresh = goldenticket.evaluate(fetch_push.make_policy(), fetch_push.make_env, [summary.best.path], FRESH,
+                                  workers=args.workers)
     done = time.perf_counter()
-    result = {"search": {k: summary[k] for k in ("base", "zero", "best", "search_episodes", "heldout_seeds")},
-              "fresh": fresh, "fresh_seeds": [FRESH.start, FRESH.stop - 1],
+    recorded = summary.to_dict()
+    keys = ("base", "zero", "best", "search_episodes", "heldout_seeds")
+    result = {"search": {k: recorded[k] for k in keys},
+              "fresh": to_dicts(fresh), "fresh_seeds": [FRESH.start, FRESH.stop - 1],
               "options": vars(args) | {"runs": str(args.runs)},
               "wall_seconds": {"search": round(searched - start), "fresh": round(done - searched)}}
     (HERE / "results" / "fetch_push.json").write_text(json.dumps(result, indent=2) + "\n")

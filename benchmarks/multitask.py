@@ -26,18 +26,17 @@ import numpy as np
 from build_zoo import MT10
 from results_files import RESULTS, write_results
 
-from goldenticket.config import SearchConfig
+from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
 from goldenticket.multitask import transfer
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
 from goldenticket.policies import load_policy
 from goldenticket.report import gain_text, p_vs_base, rate_text, short_task
-from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task
 from goldenticket.tickets import Ticket, zero_ticket
-from goldenticket.workflow import find_golden_tickets, progress_bar
+from goldenticket.workflow import find_golden_tickets
 
 HERE = Path(__file__).parent
 TASKS = tuple(f"metaworld/{t}" for t in MT10)
@@ -55,15 +54,15 @@ def fresh_verdict(policy_name: str, tickets: dict[str, dict[str, Ticket | None]]
     tasks = [get_task(t) for t in TASKS]
     out = {}
     with RunStore(runs / "fresh.sqlite") as store, \
-            Engine(policy_name, tasks, workers=workers, loaded=policy) as engine:
-        evaluator = Evaluator(engine, store)
-        with progress_bar(evaluator, len(FRESH) * len(ARMS) * len(TASKS), "fresh held-out verdict"):
-            for task in TASKS:
-                roles = {role: Gaussian(0) if t is None else Constant(t.noise)
-                         for role, t in tickets[task].items()}
-                judged = judge(evaluator, {"zero": zero} | roles, FRESH, Gaussian(0), task)
-                adjust_for_multiplicity(judged, list(roles))
-                out[task] = {label: j.to_dict() for label, j in judged.items()}
+            Evaluator.open(policy_name, tasks, EngineOptions(workers=workers), store,
+                           loaded=policy) as evaluator, \
+            evaluator.progress(len(FRESH) * len(ARMS) * len(TASKS), "fresh held-out verdict"):
+        for task in TASKS:
+            roles = {role: Gaussian(0) if t is None else Constant(t.noise)
+                     for role, t in tickets[task].items()}
+            judged = judge(evaluator, {"zero": zero} | roles, FRESH, Gaussian(0), task)
+            adjust_for_multiplicity(judged, list(roles))
+            out[task] = {label: j.to_dict() for label, j in judged.items()}
     return out
 
 

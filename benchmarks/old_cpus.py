@@ -26,21 +26,16 @@ POLICIES = ("metaworld/pick-place-v3/flow", "metaworld/reach-v3/ddim@2",
 OLD_CPU = {"GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2,-FMA", "GALLIUM_OVERRIDE_CPU_CAPS": "sse4.1"}
 EPISODES = """
 import json, sys
-import numpy as np
-from goldenticket.evaluation import Evaluator
-from goldenticket.noise import Constant, Gaussian
-from goldenticket.policies import bundled_tickets, load_policy
-from goldenticket.rollout import Engine
-from goldenticket.tasks import get_task, seeds_in
+import goldenticket
+from goldenticket.policies import bundled_tickets
+from goldenticket.tasks import seeds_in
 from goldenticket.tickets import Ticket
 
 policy, n = sys.argv[1], int(sys.argv[2])
-arms = [("base", Gaussian(0)), ("zero", Constant(np.zeros(load_policy(policy).noise_shape, np.float32)))]
-arms += [(t.id, Constant(t.noise)) for t in map(Ticket.load, bundled_tickets())
-         if t.metadata["policy"] == policy]
-with Engine(policy, get_task("/".join(policy.split("/")[:2])), workers=2) as engine:
-    runs = Evaluator(engine).run([(label, source, seeds_in("heldout", n)) for label, source in arms])
-print(json.dumps({label: [r.success for r in results] for (label, _), results in zip(arms, runs)}))
+tickets = [path for path in bundled_tickets() if Ticket.load(path).metadata["policy"] == policy]
+task = "/".join(policy.split("/")[:2])
+rows = goldenticket.evaluate(policy, task, tickets, seeds_in("heldout", n), workers=2)
+print(json.dumps({label: row.successes for label, row in rows.items()}))
 """
 
 

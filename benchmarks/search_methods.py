@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 from results_files import write_results
 
+from goldenticket.config import EngineOptions
 from goldenticket.evaluation import Evaluator
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
-from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
 from goldenticket.ticket_search import make_optimizer, run_search
@@ -69,9 +69,9 @@ def compare(policy_name: str, runs: Path, workers: int) -> dict:
     task, policy = get_task(policy_name.rsplit("/", 1)[0]), load_policy(policy_name)
     out = {}
     for objective in dict.fromkeys(o for _, _, o in METHODS.values()):
-        with Engine(policy_name, task, workers=workers, objective=objective, loaded=policy) as engine, \
-                RunStore(runs / f"{policy_name.replace('/', '_')}_{objective}.sqlite") as store:
-            evaluator = Evaluator(engine, store)
+        with RunStore(runs / f"{policy_name.replace('/', '_')}_{objective}.sqlite") as store, \
+                Evaluator.open(policy_name, task, EngineOptions(workers=workers), store, objective,
+                               policy) as evaluator:
             out.setdefault("base", held_out(evaluator, None))
             for label in [k for k, (_, _, o) in METHODS.items() if o == objective]:
                 out[label] = []

@@ -60,24 +60,23 @@ SEEDS = (400, 600)  # held-out seeds 400..599: after those the bundled tickets w
 def real_outcomes(cached: dict) -> dict:
     """Base and ticket outcomes on SEEDS for each ROBOT pair, and a second base (another noise
     seed) for the first, as strings of 0/1; reused from `cached` when it holds the same spec."""
-    from goldenticket.noise import Constant, Gaussian
-    from goldenticket.policies.registry import find_ticket
-    from goldenticket.rollout import Engine, Episode
-    from goldenticket.tasks import get_task, seeds_in
-    from goldenticket.tickets import Ticket
+    import goldenticket
+    from goldenticket.tasks import seeds_in
 
     spec = {"pairs": ROBOT, "seeds": SEEDS}
     if cached.get("spec") == json.loads(json.dumps(spec)):
         return cached
     start, seeds, outcomes = time.perf_counter(), seeds_in("heldout", SEEDS[1])[SEEDS[0]:], {}
+
+    def bits(row) -> str:
+        return "".join("01"[success] for success in row.successes)
+
     for i, (name, (policy, ticket_id)) in enumerate(ROBOT.items()):
-        ticket = Ticket.load(find_ticket(ticket_id))
-        arms = {"base": Gaussian(0), "ticket": Constant(ticket.noise)}
+        rows = goldenticket.evaluate(policy, tickets=[ticket_id], seeds=seeds, workers=1)
+        outcomes[name] = {"base": bits(rows["base"]), "ticket": bits(rows[ticket_id])}
         if i == 0:
-            arms["base again"] = Gaussian(1)
-        with Engine(policy, get_task(ticket.metadata["task"])) as engine:
-            outcomes[name] = {arm: "".join("01"[r.success] for r in engine.evaluate(
-                [Episode(source, seed) for seed in seeds])) for arm, source in arms.items()}
+            again = goldenticket.evaluate(policy, tickets=[ticket_id], seeds=seeds, seed=1, workers=1)
+            outcomes[name]["base again"] = bits(again["base"])
     return {"spec": spec, "outcomes": outcomes, "seconds": time.perf_counter() - start}
 
 

@@ -34,4 +34,4 @@ def test_scheduler_policies_run_through_workers_by_import_string():
     for name in ("byo_diffusers:make_ddim_policy", "byo_diffusers:make_flow_policy"):
         rows = goldenticket.evaluate(name, "byo_example:make_env", seeds=range(1_000_000, 1_000_006),
                                      max_steps=20, workers=2)
-        assert rows["base"]["n"] == 6 and {"base", "zero"} == set(rows)
+        assert rows["base"].rate.n == 6 and {"base", "zero"} == set(rows)

@@ -1,12 +1,7 @@
-import sys
-from pathlib import Path
-
+import existence
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-import existence  # noqa: E402
-import search_methods  # noqa: E402
+import search_methods
 
 
 def _rate(p, n=200):

@@ -49,10 +49,11 @@ def test_search_and_evaluate_from_the_cli_resume_and_agree_with_the_api(tmp_path
     api = goldenticket.search("byo_example:make_policy", "byo_example:make_env", tmp_path / "api",
                               max_steps=30, budget=400, search_seeds=20, validation_seeds=20, heldout=50,
                               top_k=2, workers=1)
-    assert [t["ticket_id"] for t in api["tickets"]] == [t["ticket_id"] for t in summary["tickets"]]
+    assert [t.id for t in api.tickets] == [t["ticket_id"] for t in summary["tickets"]]
+    assert api.to_dict() == json.loads((tmp_path / "api" / "summary.json").read_text())
     rows = goldenticket.evaluate("byo_example:make_policy", "byo_example:make_env", [ticket],
                                  range(1000100, 1000110), max_steps=30, workers=1)
-    assert rows["base"]["n"] == 10 and len(rows) == 3
+    assert rows["base"].rate.n == 10 and len(rows) == 3
 
 
 @pytest.mark.slow
@@ -65,13 +66,13 @@ def test_the_api_takes_objects_and_a_success_predicate(tmp_path):
                                   workers=1, **options)
     by_object = goldenticket.search(byo_example.BiasedController(), byo_example.make_silent_env,
                                     tmp_path / "o", success=byo_example.within_reach, workers=2, **options)
-    assert by_object["task"] == "byo_example:make_silent_env" and by_object["policy"] == "biased-controller"
-    assert by_object["base"] == by_name["base"] and by_object["zero"] == by_name["zero"]
-    assert by_object["best"]["success_rate"] == by_name["best"]["success_rate"]
+    assert by_object.task == "byo_example:make_silent_env" and by_object.run.policy == "biased-controller"
+    assert by_object.base == by_name.base and by_object.zero == by_name.zero
+    assert by_object.best.heldout.rate == by_name.best.heldout.rate
     rows = goldenticket.evaluate(byo_example.BiasedController(), byo_example.make_silent_env,
-                                 [by_object["best"]["ticket_path"]], range(1000100, 1000120),
+                                 [by_object.best.path], range(1000100, 1000120),
                                  success="byo_example:within_reach", max_steps=30, workers=1)
-    assert rows["base"]["n"] == 20 and len(rows) == 3
+    assert rows["base"].rate.n == 20 and len(rows) == 3
     with pytest.raises(UserError, match="cannot be sent to a worker process"):
         goldenticket.search(byo_example.BiasedController(), lambda: byo_example.PointReach(),
                             tmp_path / "l", workers=1, **options)
@@ -217,8 +218,8 @@ def test_a_policy_rarely_non_finite_gets_a_verdict_counting_those_episodes(capsy
     summary = goldenticket.search("byo_example:make_rare_nan_policy", "byo_example:make_env", tmp_path,
                                   max_steps=30, budget=160, heldout=200, validation_seeds=20, top_k=2,
                                   workers=1)
-    assert summary["base"]["nonfinite_episodes"] == rows["base"]["nonfinite_episodes"]  # the same episodes
-    assert all("nonfinite_episodes" in t for t in summary["tickets"])
+    assert summary.base.nonfinite == rows["base"]["nonfinite_episodes"]  # the same episodes
+    assert all("nonfinite_episodes" in t for t in summary.to_dict()["tickets"])
 
 
 @pytest.mark.slow

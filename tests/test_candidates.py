@@ -46,9 +46,9 @@ def test_a_given_ticket_is_validated_beside_the_search(tmp_path):
     with RunStore(tmp_path / "run" / "run.sqlite") as store:
         rows = store.episodes(seed_set="validation")
     scores = {t: np.mean([r.ret for r in rows if r.ticket_id == t]) for t in {r.ticket_id for r in rows}}
-    judged = {t["ticket_id"] for t in summary["tickets"]}
+    judged = {t.id for t in summary.tickets}
     assert len(scores) == 3 * 2 + 2  # the search's 3 x top-k, the zero ticket and the given one
-    fingerprint = Ticket.load(summary["best"]["ticket_path"]).metadata["policy_fingerprint"]
+    fingerprint = Ticket.load(summary.best.path).metadata["policy_fingerprint"]
     assert Ticket(Ticket.load(given).noise, {"policy_fingerprint": fingerprint}).id in scores
     assert min(scores[t] for t in judged) >= max(scores[t] for t in set(scores) - judged)
 

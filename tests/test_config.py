@@ -11,6 +11,7 @@ from goldenticket.cli import _parser, main
 from goldenticket.config import (
     EvaluateConfig,
     SearchConfig,
+    TrainConfig,
     cli_fields,
     read_toml,
     to_toml,
@@ -28,7 +29,8 @@ def _flags(command: str) -> set[str]:
     return {s for a in sub._actions for s in a.option_strings}
 
 
-@pytest.mark.parametrize("command, cls", [("search", SearchConfig), ("evaluate", EvaluateConfig)])
+@pytest.mark.parametrize("command, cls", [("search", SearchConfig), ("evaluate", EvaluateConfig),
+                                          ("train", TrainConfig)])
 def test_every_field_is_a_flag_and_every_flag_a_field(command, cls):
     own = {"-h", "--help", "--config", "--out", "--plot", "--json"}
     expected = {f.metadata["cli"].get("flag", flag(f.name)) for f in cli_fields(cls)}
@@ -43,6 +45,17 @@ def test_the_api_names_fields_and_the_command_line_names_flags(tmp_path, capsys)
     with pytest.raises(OptionError, match="^policy must be given$"):
         goldenticket.config.make(SearchConfig, {"task": "x"})
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_train_options_are_checked_by_field_before_any_work(tmp_path, capsys):
+    with pytest.raises(OptionError, match=r"^n_exec 9 cannot exceed horizon 8$"):
+        TrainConfig(task="metaworld/reach-v3", n_exec=9).check()
+    for argv, said in ((["--n-exec", "9"], "--n-exec 9 cannot exceed --horizon 8"),
+                       (["--action-noise", "-1"], "--action-noise must be >= 0, got -1.0"),
+                       (["--batch", "0"], "--batch must be > 0, got 0")):
+        assert main(["train", "--task", "metaworld/reach-v3", *argv, "--out", str(tmp_path / "p")]) == 2
+        assert capsys.readouterr().err == f"goldenticket: error: {said}\n"
+    assert not (tmp_path / "p").exists()
 
 
 def test_a_flag_given_twice_is_refused(tmp_path, capsys):
@@ -98,8 +111,10 @@ def test_evaluate_takes_a_config_file_with_a_seed_range(tmp_path, monkeypatch, c
     assert main(["evaluate", "--config", str(file), "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert rows["base"]["n"] == 4
-    assert rows == goldenticket.evaluate("byo_example:make_policy", "byo_example:make_env",
-                                         seeds=range(1_000_000, 1_000_004), workers=1, max_steps=10)
+    typed = goldenticket.evaluate("byo_example:make_policy", "byo_example:make_env",
+                                  seeds=range(1_000_000, 1_000_004), workers=1, max_steps=10)
+    assert rows == {label: row.to_dict() for label, row in typed.items()}
+    assert typed["base"].rate.n == 4 and len(typed["base"].successes) == 4
 
 
 def test_one_ticket_given_alone_is_one_ticket_not_its_characters():

@@ -79,7 +79,7 @@ def test_one_policy_has_one_identity_from_the_cli_and_the_api(mine, tmp_path):
     assert identity(load_policy("mine:make_policy")) == identity(mine.BiasedController())
     summary = goldenticket.search(mine.BiasedController(), mine.make_env, tmp_path / "api", max_steps=30,
                                   budget=120, search_seeds=10, heldout=40, top_k=1, validation_seeds=0,
-                                  workers=1)
+                                  workers=1).to_dict()
     ticket = summary["best"]["ticket_path"]
     # neither --task nor --max-steps: the ticket's own, so the verdict's numbers come back exactly
     done = _cli(tmp_path, "evaluate", "--policy", "mine:make_policy", "--ticket", ticket,
@@ -95,7 +95,7 @@ def test_a_setting_that_contradicts_the_tickets_is_refused_with_both_values(mine
     summary = goldenticket.search("mine:make_policy", "mine:make_env", tmp_path / "run", max_steps=30,
                                   budget=40, search_seeds=10, heldout=10, top_k=1, validation_seeds=0,
                                   workers=1)
-    ticket = summary["best"]["ticket_path"]
+    ticket = summary.best.path
     argv = ["evaluate", "--policy", "mine:make_policy", "--ticket", ticket, "--seeds", "1000000:1000010",
             "--workers", "1", "--max-steps", "1000"]
     capsys.readouterr()
@@ -128,7 +128,7 @@ def test_the_api_names_unknown_options_and_takes_several_tasks(tmp_path):
     summary = goldenticket.search("metaworld/mt10/flow", ("metaworld/reach-v3", "metaworld/push-v3"),
                                   tmp_path / "mt", budget=20, search_seeds=2, heldout=4, top_k=1, workers=1,
                                   method="rs")
-    assert set(summary["tasks"]) == {"metaworld/reach-v3", "metaworld/push-v3"}
+    assert set(summary.verdict.tasks) == {"metaworld/reach-v3", "metaworld/push-v3"}
 
 
 @pytest.mark.slow

@@ -223,8 +223,8 @@ def test_a_checkpoint_is_searched_through_the_api_and_resumed(tmp_path):
     options = {"method": "rs", "budget": 8, "search_seeds": 2, "validation_seeds": 0, "heldout": 16,
                "top_k": 1, "max_steps": 20, "workers": 1}
     first = goldenticket.search(folder, REACH, tmp_path / "run", **options)
-    assert first["policy"] == folder and first["base"]["n"] == 16
-    ticket = Ticket.load(Path(first["best"]["ticket_path"]), expected_shape=(8, 4))
+    assert first.run.policy == folder and first.base.rate.n == 16
+    ticket = Ticket.load(Path(first.best.path), expected_shape=(8, 4))
     assert ticket.metadata["policy_fingerprint"] == load_policy(folder).fingerprint()
     assert goldenticket.search(folder, REACH, tmp_path / "run", **options) == first
 

@@ -50,7 +50,7 @@ def test_a_search_over_three_nodes_gives_the_episodes_of_local_processes(cluster
     runs = {"local": {"workers": 1}, "ray": {"workers": NODES, "backend": "ray", "address": cluster.address}}
     summaries, stored = {}, {}
     for name, backend in runs.items():
-        summary = goldenticket.search(POLICY, TASK, tmp_path / name, **options, **backend)
+        summary = goldenticket.search(POLICY, TASK, tmp_path / name, **options, **backend).to_dict()
         summaries[name] = {k: v for k, v in summary.items() if k not in ("best", "tickets")}
         summaries[name]["tickets"] = [{k: v for k, v in t.items() if k != "ticket_path"}
                                       for t in summary["tickets"]]

@@ -3,6 +3,7 @@ import json
 import numpy as np
 import pytest
 
+from goldenticket.config import TrainConfig
 from goldenticket.policies import PolicyConfig, TicketedPolicy
 from goldenticket.tasks import get_task
 from goldenticket.train import DemoStyle, chunk_dataset, collect_demos, train_policy
@@ -49,6 +50,6 @@ def test_a_failed_train_leaves_nothing(tmp_path, monkeypatch):
 
     monkeypatch.setattr(train, "measure", broken)
     with pytest.raises(RuntimeError):
-        train.build_policy("metaworld/reach-v3", "flow", tmp_path / "p", n_demos=1,
-                           style=train.DemoStyle(), steps=10, heldout=2)
+        train.build_policy(TrainConfig(task="metaworld/reach-v3", demos=1, steps=10, heldout=2),
+                           tmp_path / "p")
     assert list(tmp_path.iterdir()) == []

@@ -23,10 +23,11 @@ from pathlib import Path
 __version__ = "0.1.0"
 
 
-def search(policy, task, out: str | Path, **options) -> dict:
-    """Search tickets and judge the best on held-out seeds into `out` (resumable); returns the
-    summary as `summary.json` holds it (`workflow.find_golden_tickets` returns it typed). `task`
-    may be several task names (a tuple): one ticket for a multi-task policy. `options`: the fields
+def search(policy, task, out: str | Path, **options):
+    """Search tickets and judge the best on held-out seeds into `out` (resumable); returns a
+    `results.Summary` (`summary.best.heldout.golden`, `summary.best.path`; `.to_dict()` is
+    summary.json), or a `results.MultitaskSummary` when `task` is several task names (a tuple):
+    one ticket for a multi-task policy. `options`: the fields
     of `config.SearchConfig` (method, budget, seed, search_seeds, heldout, top_k, objective,
     front_objective, stop_after_perfect, max_tickets, max_steps, success, subspace,
     validation_seeds, no_regression, tickets, log, workers, backend, address, max_nonfinite)."""
@@ -34,20 +35,21 @@ def search(policy, task, out: str | Path, **options) -> dict:
     from goldenticket.workflow import find_golden_tickets
 
     cfg = make(SearchConfig, {"policy": policy, "task": task} | options)
-    return find_golden_tickets(cfg, Path(out)).to_dict()
+    return find_golden_tickets(cfg, Path(out))
 
 
 def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
-             seeds: Iterable[int] = range(1_000_000, 1_000_200), **options) -> dict[str, dict]:
-    """Base, zero ticket and each ticket file on held-out `seeds`, with Wilson intervals and
-    Holm-adjusted paired p-values. `task`, `max_steps` and `success` default to those the tickets
+             seeds: Iterable[int] = range(1_000_000, 1_000_200), **options):
+    """Base, zero ticket and each ticket file on held-out `seeds`: an `evaluation.VerdictRow` per arm
+    ("base", "zero", ticket ids), with its Wilson interval, Holm-adjusted paired p-values and each
+    seed's success (`row.to_dict()` is what `evaluate --json` prints). `task`, `max_steps` and
+    `success` default to those the tickets
     were found under. `options`: the other fields of `config.EvaluateConfig` (seed, max_steps,
     success, allow_transfer, mixture, epsilon, workers, backend, address, max_nonfinite)."""
     from goldenticket.config import EvaluateConfig, make
-    from goldenticket.evaluation import to_dicts
     from goldenticket.workflow import evaluate_tickets
 
     seeds = seeds if isinstance(seeds, range) else list(seeds)
     cfg = make(EvaluateConfig, {"policy": policy, "task": task, "tickets": tickets,
                                 "seeds": seeds} | options)
-    return to_dicts(evaluate_tickets(cfg))
+    return evaluate_tickets(cfg)

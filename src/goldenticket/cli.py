@@ -14,10 +14,10 @@ from pathlib import Path
 
 from goldenticket import __version__
 from goldenticket.config import (
-    TASK_HELP,
     EngineOptions,
     EvaluateConfig,
     SearchConfig,
+    TrainConfig,
     cli_fields,
     make,
     read_toml,
@@ -157,25 +157,8 @@ def _evaluate_parser(sub) -> None:
 
 def _train_parser(sub) -> None:
     tr = sub.add_parser("train", help="train a policy on imperfect scripted-expert demonstrations")
-    tr.add_argument("--task", required=True, help=TASK_HELP)
-    tr.add_argument("--kind", choices=["flow", "ddim"], default="flow",
-                    help="flow matching (Euler steps) or DDIM (eta = 0)")
     tr.add_argument("--out", type=Path, required=True, help="new policy folder to write")
-    tr.add_argument("--demos", type=int, default=20, help="successful demonstrations to train on")
-    tr.add_argument("--grasp-offset", type=float, default=0.0,
-                    help="each demonstrator aims at the object shifted by U(+-this) m in x and y")
-    tr.add_argument("--goal-offset", type=float, default=0.0,
-                    help="each demonstrator aims at the goal shifted by U(+-this) m in x and y")
-    tr.add_argument("--action-noise", type=float, default=0.0,
-                    help="std of Gaussian noise added to the demonstrators' actions")
-    tr.add_argument("--steps", type=int, default=20_000, help="gradient steps")
-    tr.add_argument("--batch", type=int, default=256, help="demonstration chunks per gradient step")
-    tr.add_argument("--denoise-steps", type=int, default=10, help="Euler / DDIM steps at inference")
-    tr.add_argument("--horizon", type=int, default=8, help="actions predicted per call (H)")
-    tr.add_argument("--n-exec", type=int, default=4, help="actions executed before replanning")
-    tr.add_argument("--heldout", type=int, default=200,
-                    help="held-out initial states the model card's base and zero-ticket success use")
-    tr.add_argument("--seed", type=_seed, default=0, help="seed of demonstrations and training")
+    _config_flags(tr, TrainConfig)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -379,12 +362,9 @@ def _evaluate(args) -> int:
 
 
 def _train(args) -> int:
-    from goldenticket.train import DemoStyle, build_policy
+    from goldenticket.train import build_policy
 
-    style = DemoStyle(args.grasp_offset, args.action_noise, args.goal_offset)
-    build_policy(args.task, args.kind, args.out, n_demos=args.demos, style=style,
-                 steps=args.steps, denoise_steps=args.denoise_steps, horizon=args.horizon,
-                 n_exec=args.n_exec, seed=args.seed, heldout=args.heldout, batch=args.batch)
+    build_policy(make(TrainConfig, _options(args, TrainConfig)), args.out)
     print(f"Wrote {args.out} (config.json, model.safetensors, MODEL_CARD.md).")
     return 0
 

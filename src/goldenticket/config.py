@@ -1,4 +1,5 @@
-"""Every option of a search and of an evaluation, once: typed fields with their defaults and help.
+"""Every option of a search, an evaluation and a training run, once: typed fields with their
+defaults and help.
 
 The command line's flags are generated from these fields (`cli.py`: field `search_seeds` is
 `--search-seeds`), a run can be given as a TOML file whose keys are the fields, and every search's
@@ -217,6 +218,42 @@ class EvaluateConfig(EngineOptions):
         if not 0 <= self.epsilon <= 1 or (self.epsilon and not self.mixture):
             raise OptionError(f"epsilon must be in [0, 1] and comes with mixture, got {self.epsilon}",
                               "epsilon", "mixture")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainConfig:
+    """A policy trained on imperfect scripted-expert demonstrations, and its model card."""
+
+    task: str = option(help="built-in Meta-World task, e.g. metaworld/reach-v3 (metaworld-pixels/...: a "
+                       "policy that sees camera frames)", required=True)
+    kind: str = option("flow", "flow matching (Euler steps) or DDIM (eta = 0)", choices=("flow", "ddim"))
+    demos: int = option(20, "successful demonstrations to train on")
+    grasp_offset: float = option(0.0, "each demonstrator aims at the object shifted by U(+-this) m in x "
+                                 "and y")
+    goal_offset: float = option(0.0, "each demonstrator aims at the goal shifted by U(+-this) m in x and y")
+    action_noise: float = option(0.0, "std of Gaussian noise added to the demonstrators' actions")
+    steps: int = option(20_000, "gradient steps")
+    batch: int = option(256, "demonstration chunks per gradient step")
+    denoise_steps: int = option(10, "Euler / DDIM steps at inference")
+    horizon: int = option(8, "actions predicted per call (H)")
+    n_exec: int = option(4, "actions executed before replanning")
+    heldout: int = option(200, "held-out initial states the model card's base and zero-ticket success use")
+    seed: int = option(0, "seed of demonstrations and training")
+    workers: int = option(1, "worker processes measuring the model card's success")
+
+    def check(self) -> None:
+        """Every option, before any demonstration is collected."""
+        for name in ("demos", "steps", "batch", "denoise_steps", "horizon", "n_exec", "heldout", "workers"):
+            if getattr(self, name) <= 0:
+                raise OptionError(f"{name} must be > 0, got {getattr(self, name)}", name)
+        if self.n_exec > self.horizon:
+            raise OptionError(f"n_exec {self.n_exec} cannot exceed horizon {self.horizon}", "n_exec",
+                              "horizon")
+        for name in ("seed", "grasp_offset", "goal_offset", "action_noise"):
+            if getattr(self, name) < 0:
+                raise OptionError(f"{name} must be >= 0, got {getattr(self, name)}", name)
+        if self.kind not in ("flow", "ddim"):
+            raise OptionError(f"unknown kind {self.kind!r}; choose from ['flow', 'ddim']", "kind")
 
 
 def ticket_refs(tickets) -> tuple[str, ...]:

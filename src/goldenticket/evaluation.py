@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
 
-from goldenticket.config import MAX_NONFINITE, check_max_nonfinite
+from tqdm import tqdm
+
+from goldenticket.config import MAX_NONFINITE, EngineOptions, check_max_nonfinite
 from goldenticket.errors import OptionError, UserError
 from goldenticket.noise import Gaussian, NoiseSource
 from goldenticket.rollout import NONFINITE, Engine, Episode, EpisodeResult
@@ -34,6 +37,24 @@ class Evaluator:
         check_max_nonfinite(max_nonfinite)
         self.engine, self.store, self.on_done, self.max_nonfinite = engine, store, on_done, max_nonfinite
         self._digests: dict[tuple[str, int], str] = {}  # (task, seed): first initial digest, without a store
+
+    @classmethod
+    @contextmanager
+    def open(cls, policy, tasks, options: EngineOptions | None = None, store: RunStore | None = None,
+             objective: str = "success", loaded=None) -> Iterator[Evaluator]:
+        """An evaluator on its own engine for `policy` on `tasks` (one task or several), where
+        `options` say (workers, backend, address, max_nonfinite); `loaded`: the policy already
+        built, used in-process. The engine's workers stop when the block ends."""
+        options = options or EngineOptions()
+        with Engine(policy, tasks, objective=objective, workers=options.workers, backend=options.backend,
+                    address=options.address, loaded=loaded) as engine:
+            yield cls(engine, store, max_nonfinite=options.max_nonfinite)
+
+    def progress(self, total: int | None, desc: str) -> tqdm:
+        """A tqdm bar that this evaluator advances as episodes finish (or are read back)."""
+        bar = tqdm(total=total, desc=desc, unit="ep", dynamic_ncols=True)
+        self.on_done = bar.update
+        return bar
 
     def run(self, jobs: Sequence[Job], task: str | None = None) -> list[list[EpisodeResult]]:
         """Results per job, in seed order, on `task` (default: the engine's first); new episodes of
@@ -121,7 +142,8 @@ class Judged:
         return sum(r.cause == NONFINITE for r in self.results)
 
     def row(self) -> VerdictRow:
-        return VerdictRow(self.rate, self.nonfinite, self.p_vs_base, self.p_vs_zero)
+        return VerdictRow(self.rate, self.nonfinite, self.p_vs_base, self.p_vs_zero,
+                          successes=tuple(self.successes))
 
     def to_dict(self) -> dict:
         return self.row().to_dict()
@@ -130,24 +152,29 @@ class Judged:
 @dataclass(frozen=True)
 class VerdictRow:
     """An arm's held-out verdict: success rate, episodes a NaN or infinite action ended, p-values vs
-    base and vs the zero ticket (None: not tested), and its diversity where measured."""
+    base and vs the zero ticket (None: not tested), its diversity where measured, and each
+    episode's success (not written to JSON)."""
 
     rate: Rate
     nonfinite: int = 0
     p_vs_base: float | None = None
     p_vs_zero: float | None = None
     diversity: float | None = None
+    successes: tuple[bool, ...] = field(default=(), repr=False, compare=False)  # per seed, in seed order
 
     @property
     def golden(self) -> bool:
         return self.p_vs_base is not None and self.p_vs_base < ALPHA
 
+    @property
+    def verdict(self) -> str:
+        return "golden" if self.golden else "not golden"
+
     def to_dict(self) -> dict:
         """The row as summary.json, ticket metadata and `evaluate --json` write it."""
         out = self.rate.to_dict() | {"nonfinite_episodes": self.nonfinite}
         if self.p_vs_base is not None:
-            out |= {"p_vs_base": self.p_vs_base, "golden": self.golden,
-                    "verdict": "golden" if self.golden else "not golden"}
+            out |= {"p_vs_base": self.p_vs_base, "golden": self.golden, "verdict": self.verdict}
         if self.p_vs_zero is not None:
             out["p_vs_zero"] = self.p_vs_zero
         if self.diversity is not None:

@@ -19,7 +19,6 @@ from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
 from goldenticket.policies import find_ticket, load_policy
-from goldenticket.rollout import Engine
 from goldenticket.stats import holm_adjust
 from goldenticket.tasks import seeds_in
 from goldenticket.tickets import Ticket, zero_ticket
@@ -28,7 +27,6 @@ from goldenticket.workflow import (
     checked_tasks,
     find_golden_tickets,
     open_store,
-    progress_bar,
     shared,
 )
 
@@ -58,13 +56,11 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     tickets = list({t.id: t for t in tickets}.values())  # several tasks' searches may find one ticket
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
-    with Engine(cfg.policy, tasks, workers=cfg.workers, backend=cfg.backend, address=cfg.address,
-                loaded=policy) as engine, \
-            open_store(out, cfg, names) as store:
-        evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
-        with progress_bar(evaluator, cfg.heldout * len(sources) * len(tasks) + cfg.heldout * len(tasks),
-                          "transfer matrix"):
-            per_task = {t.name: judge(evaluator, sources, heldout, base, t.name) for t in tasks}
+    with Evaluator.open(cfg.policy, tasks, cfg, loaded=policy) as evaluator, \
+            open_store(out, cfg, names) as store, \
+            evaluator.progress(cfg.heldout * (len(sources) + 1) * len(tasks), "transfer matrix"):
+        evaluator.store = store  # the engine starts first: options it refuses leave no run folder
+        per_task = {t.name: judge(evaluator, sources, heldout, base, t.name) for t in tasks}
     study = matrix(per_task, found_on)
     study |= {"policy": names.policy, "heldout_seeds": [heldout[0], heldout[-1]]}
     write_atomic(out / "transfer.json", json.dumps(study, indent=2) + "\n")

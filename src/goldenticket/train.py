@@ -13,7 +13,8 @@ import torch
 from torch.nn import functional
 from tqdm import tqdm
 
-from goldenticket.errors import UserError
+from goldenticket.config import TrainConfig
+from goldenticket.errors import OptionError, UserError
 from goldenticket.files import new_folder_beside, write_atomic
 from goldenticket.policies import mlp
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
@@ -198,40 +199,34 @@ def _denoising_loss(model, cfg, obs, x0, gen):
     return torch.mean((model(obs, xt, t) - noise) ** 2)
 
 
-def build_policy(task_name: str, kind: str, out: Path, *, n_demos: int, style: DemoStyle,
-                 steps: int, denoise_steps: int = 10, horizon: int = 8, n_exec: int = 4,
-                 seed: int = 0, heldout: int = 200, batch: int = 256, workers: int = 1) -> dict:
-    """Collect demos, train, measure base and zero-ticket success, write the policy folder. A
-    `metaworld-pixels/` task gives a policy that sees its camera's frames and `agent_pos`.
+def build_policy(cfg: TrainConfig, out: Path) -> dict:
+    """Collect demos, train, measure base and zero-ticket success, write the policy folder `out`.
+    A `metaworld-pixels/` task gives a policy that sees its camera's frames and `agent_pos`.
 
     Everything is written to a hidden folder beside `out` that becomes `out` only when complete,
     so a failed or interrupted run leaves no half-written policy."""
-    for name, value in (("--demos", n_demos), ("--steps", steps), ("--denoise-steps", denoise_steps),
-                        ("--horizon", horizon), ("--n-exec", n_exec), ("--heldout", heldout),
-                        ("--batch", batch)):
-        if value <= 0:
-            raise UserError(f"{name} must be > 0, got {value}")
-    if n_exec > horizon:
-        raise UserError(f"--n-exec {n_exec} cannot exceed --horizon {horizon}")
-    if seed < 0:
-        raise UserError(f"--seed must be >= 0, got {seed}")
-    seeds_in("heldout", heldout)  # a UserError now, not after training
-    task = get_task(task_name)
+    cfg.check()
+    seeds_in("heldout", cfg.heldout)  # a UserError now, not after training
+    task = get_task(cfg.task)
     if not isinstance(task, MetaWorldTask):
-        raise UserError(f"train needs a built-in Meta-World task (scripted experts), got {task_name!r}")
-    name = f"{task_name}/{kind}"
-    cfg = PolicyConfig(name, kind, task.obs_dim, task.action_dim, horizon, n_exec,
-                       steps=denoise_steps, image_size=PIXELS if isinstance(task, PixelsTask) else None)
+        raise OptionError(f"train needs a built-in Meta-World task (scripted experts), got {cfg.task!r}",
+                          "task")
+    name = f"{cfg.task}/{cfg.kind}"
+    style = DemoStyle(cfg.grasp_offset, cfg.action_noise, cfg.goal_offset)
+    policy_cfg = PolicyConfig(name, cfg.kind, task.obs_dim, task.action_dim, cfg.horizon, cfg.n_exec,
+                              steps=cfg.denoise_steps,
+                              image_size=PIXELS if isinstance(task, PixelsTask) else None)
 
     def fill(folder: Path) -> dict:
-        demos = collect_demos(task, n_demos, style, seed)
-        policy, losses = train_policy(cfg, demos, steps=steps, batch=batch, seed=seed)
+        demos = collect_demos(task, cfg.demos, style, cfg.seed)
+        policy, losses = train_policy(policy_cfg, demos, steps=cfg.steps, batch=cfg.batch, seed=cfg.seed)
         policy.save(folder)
-        return {"policy": name, "demos": n_demos, "demo_attempts": demos.attempts,
-                "style": asdict(style), "train_steps": steps, "batch": batch, "seed": seed,
-                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measure(folder, task, heldout, workers)
+        return {"policy": name, "demos": cfg.demos, "demo_attempts": demos.attempts,
+                "style": asdict(style), "train_steps": cfg.steps, "batch": cfg.batch, "seed": cfg.seed,
+                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measure(folder, task, cfg.heldout,
+                                                                               cfg.workers)
 
-    return _into_new_folder(out, fill, cfg)
+    return _into_new_folder(out, fill, policy_cfg)
 
 
 def build_multitask_policy(name: str, recipes: dict[str, tuple[int, DemoStyle]], kind: str, out: Path, *,
@@ -282,15 +277,13 @@ def _into_new_folder(out: Path, fill: Callable[[Path], dict], cfg: PolicyConfig)
 
 def measure(policy_dir: Path, task: MetaWorldTask, heldout: int, workers: int = 1) -> dict:
     """Base and zero-ticket success of a saved policy on the first `heldout` held-out seeds."""
+    from goldenticket.config import EngineOptions
     from goldenticket.evaluation import Evaluator, judge
     from goldenticket.noise import Constant
-    from goldenticket.rollout import Engine
-    from goldenticket.workflow import progress_bar
 
-    with Engine(str(policy_dir), task, workers=workers) as engine:
-        evaluator = Evaluator(engine)
+    with Evaluator.open(str(policy_dir), task, EngineOptions(workers=workers)) as evaluator:
         zero = Constant(np.zeros(MLPPolicy.load(policy_dir).noise_shape, np.float32))
-        with progress_bar(evaluator, 2 * heldout, "held-out: base and zero ticket"):
+        with evaluator.progress(2 * heldout, "held-out: base and zero ticket"):
             judged = judge(evaluator, {"zero": zero}, seeds_in("heldout", heldout))
     return {"base": judged["base"].to_dict(), "zero": judged["zero"].to_dict()}
 

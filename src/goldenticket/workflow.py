@@ -27,7 +27,6 @@ from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.plots import arms_png, search_png, tasks_png
 from goldenticket.policies import NoisePolicy, find_ticket, for_task, identity, load_policy, policy_label
 from goldenticket.results import FoundTicket, MultitaskSummary, SearchRun, Summary
-from goldenticket.rollout import Engine
 from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
 from goldenticket.studies.pareto import pareto_study
@@ -63,15 +62,14 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> Summary | MultitaskSumm
     def where(key: int) -> tuple[str, int]:
         return task_names[key % len(tasks)], search_seeds[key // len(tasks)]
 
-    with Engine(cfg.policy, tasks, objective=cfg.objective, workers=cfg.workers, backend=cfg.backend,
-                address=cfg.address, loaded=policy) as engine, \
+    with Evaluator.open(cfg.policy, tasks, cfg, objective=cfg.objective, loaded=policy) as evaluator, \
             open_store(out, cfg, names) as store, Tracker(cfg, out, search_title(cfg, names)) as tracker:
-        evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
-        with progress_bar(evaluator, 2 * cfg.heldout * len(tasks), "held-out: base and zero ticket"):
+        evaluator.store = store  # the engine starts first: options it refuses leave no run folder
+        with evaluator.progress(2 * cfg.heldout * len(tasks), "held-out: base and zero ticket"):
             for name in task_names:
                 evaluator.run([("base", base, heldout), ("zero", zero, heldout)], name)
         tasks_said = f", {len(tasks)} tasks" if len(tasks) > 1 else ""
-        with progress_bar(evaluator, cfg.budget, f"search ({cfg.method}{tasks_said})") as bar:
+        with evaluator.progress(cfg.budget, f"search ({cfg.method}{tasks_said})") as bar:
             evaluate = query_evaluator(evaluator, names.fingerprint, expand, where)
             result = run_search(optimizer, tracker.watch(evaluate, expand, names.fingerprint),
                                 budget=cfg.budget, stop_after_perfect=cfg.stop_after_perfect,
@@ -82,7 +80,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> Summary | MultitaskSumm
         tickets = _select(cfg, evaluator, candidates + (others if validation else []), validation, task_names)
         tracker.validated(candidates + others)
         sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
-        with progress_bar(evaluator, cfg.heldout * (len(tickets) + 2) * len(tasks), "held-out: top tickets"):
+        with evaluator.progress(cfg.heldout * (len(tickets) + 2) * len(tasks), "held-out: top tickets"):
             per_task = {name: judge(evaluator, sources, heldout, base, name) for name in task_names}
         front, fronts = _front(cfg, names, evaluator, result, (search_seeds, heldout), (base, zero), expand,
                                tasks[0].max_steps, out) if cfg.front_objective else (None, {})
@@ -157,7 +155,7 @@ def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket], seed
     the held-out verdict uses."""
     if not seeds:
         return tickets
-    with progress_bar(evaluator, len(seeds) * len(tickets) * len(tasks), "validation: search's best tickets"):
+    with evaluator.progress(len(seeds) * len(tickets) * len(tasks), "validation: search's best tickets"):
         runs = [evaluator.run([(t.id, Constant(t.noise), seeds) for t in tickets], task) for task in tasks]
     scores = [float(np.mean([np.mean([r.ret for r in per_task[i]]) for per_task in runs]))
               for i in range(len(tickets))]
@@ -186,7 +184,7 @@ def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: Search
         ticket.metadata["front"] = fronts[ticket.id] = front_metadata
         return str(ticket.save(out / "tickets" / f"{ticket.id}.safetensors"))
 
-    with progress_bar(evaluator, None, "Pareto front"):  # its size is known only once found
+    with evaluator.progress(None, "Pareto front"):  # its size is known only once found
         study = pareto_study(evaluator, scored, (cfg.objective, cfg.front_objective), max_steps=max_steps,
                              heldout=heldout, base=baselines[0], zero=baselines[1], save=save, out=out)
     write_atomic(out / "front.json", json.dumps(study, indent=2) + "\n")
@@ -230,13 +228,6 @@ def open_store(out: Path, cfg: SearchConfig, names: Names) -> RunStore:
         raise UserError(f"{out} holds a different run; choose another --out or the same options")
     write_atomic(out / "config.toml", to_toml(cfg))
     return store
-
-
-def progress_bar(evaluator: Evaluator, total: int | None, desc: str) -> tqdm:
-    """A tqdm bar that the evaluator advances as episodes finish (or are read back)."""
-    bar = tqdm(total=total, desc=desc, unit="ep", dynamic_ncols=True)
-    evaluator.on_done = bar.update
-    return bar
 
 
 def query_evaluator(evaluator: Evaluator, fingerprint: str, expand: Callable = lambda searched: searched,
@@ -365,11 +356,9 @@ def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict
         stacked = np.stack([t.noise for t in tickets])
         reseeded["mixture"] = lambda r: TopK(stacked, cfg.seed + r, cfg.epsilon)
     sources = {label: source(0) for label, source in reseeded.items() if label != "base"}
-    with Engine(cfg.policy, task, workers=cfg.workers, backend=cfg.backend, address=cfg.address,
-                loaded=policy) as engine:
-        evaluator = Evaluator(engine, store, max_nonfinite=cfg.max_nonfinite)
-        with progress_bar(evaluator, len(seeds) * (len(sources) + 1), "evaluating"):
-            judged = judge(evaluator, sources, seeds, Gaussian(cfg.seed))
+    with Evaluator.open(cfg.policy, task, cfg, store, loaded=policy) as evaluator, \
+            evaluator.progress(len(seeds) * (len(sources) + 1), "evaluating"):
+        judged = judge(evaluator, sources, seeds, Gaussian(cfg.seed))
     adjust_for_multiplicity(judged, [label for label in sources if label != "zero"])
     rows = {label: j.row() for label, j in judged.items()}
     if cfg.mixture:
