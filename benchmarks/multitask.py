@@ -95,7 +95,7 @@ def markdown(results: dict, wall: float, policy: str) -> str:
               "|---|" + "---|" * len(study["tasks"])]
     for ticket, found in study["tickets"].items():
         row = study["cells"][ticket]
-        gains = " | ".join(gain_text(row[t]) for t in study["tasks"])
+        gains = " | ".join(gain_text(row[t]["gain"], row[t]["significant"]) for t in study["tasks"])
         lines.append(f"| {ticket} ({', '.join(map(short_task, found))}) | {gains} |")
     lines += ["", "### The multi-task search's own verdict (first 100 held-out seeds): best ticket "
               f"{mt['best']}", "",
@@ -145,14 +145,14 @@ def main() -> None:
     mt = mt.to_dict()
     searches = runs / "transfer" / "search"
     own = {task: Ticket.load(searches / task.replace("/", "_") / "tickets" / f"{tid}.safetensors")
-           for tid, tasks in study["tickets"].items() for task in tasks}
+           for tid, tasks in study.tickets.items() for task in tasks}
     multi = Ticket.load(runs / "multitask" / "tickets" / f"{mt['best']}.safetensors")
     by_id = {t.id: t for t in own.values()}
     roles = {t: {"own ticket": own[t], "multi-task ticket": multi,
-                 "cover": by_id.get(study["cover"]["table"][t]["use"])} for t in TASKS}
+                 "cover": by_id.get(study.cover.table[t][0])} for t in TASKS}
     fresh = fresh_verdict(args.policy, roles, runs, args.workers)
     wall = time.perf_counter() - start
-    results = {"policy": args.policy, "transfer": study, "multitask": mt, "fresh": fresh,
+    results = {"policy": args.policy, "transfer": study.to_dict(), "multitask": mt, "fresh": fresh,
                "wall_seconds": wall}
     write_results("multitask", results, markdown(results, wall, args.policy),
                   lambda path: plot(results, path))

@@ -7,11 +7,13 @@ import torch
 
 from goldenticket.cli import main
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Judged, judged_arms
+from goldenticket.evaluation import Judged, VerdictRow, judged_arms
 from goldenticket.evaluation import multitask_verdict as verdict
 from goldenticket.multitask import greedy_cover
 from goldenticket.policies import MLPPolicy, PolicyConfig
+from goldenticket.results import TransferCell
 from goldenticket.rollout import EpisodeResult
+from goldenticket.stats import Rate
 from goldenticket.store import RunStore
 from goldenticket.tasks.base import SEED_SETS
 from goldenticket.tickets import Ticket
@@ -93,20 +95,19 @@ def test_no_regression_passes_over_a_ticket_worse_on_one_task():
 
 def test_greedy_cover_picks_the_fewest_tickets_and_falls_back_to_the_best():
     def cell(gain, significant):
-        return {"success_rate": 0.5 + gain, "gain": gain, "p_vs_base": 0.01 if significant else 0.5,
-                "significant": significant}
+        return TransferCell(0.5 + gain, gain, 0.01 if significant else 0.5, significant)
 
     gains = {"A": (0.2, 0.1, -0.1, -0.2, 0.0), "B": (0.3, 0.0, 0.2, -0.1, 0.0),
              "C": (0.0, 0.0, 0.3, -0.3, 0.1)}
     significant = {"A": {"t1", "t2"}, "B": {"t1", "t3"}, "C": {"t3"}}
     cells = {t: {f"t{i + 1}": cell(g, f"t{i + 1}" in significant[t]) for i, g in enumerate(gains[t])}
              for t in gains}
-    baselines = {t: {"base": {"success_rate": 0.5}} for t in ("t1", "t2", "t3", "t4", "t5")}
-    cover = greedy_cover(cells, baselines)
+    bases = {t: VerdictRow(Rate.counted(50, 100)) for t in ("t1", "t2", "t3", "t4", "t5")}
+    cover = greedy_cover(cells, bases)
     # A and B each cover two tasks, B with the larger gain; then A covers t2; t4: no ticket beats
     # the base; t5: C beats it, not significantly
-    assert cover["tickets"] == ["B", "A"] and cover["fallbacks"] == ["C"]
-    uses = {t: row["use"] for t, row in cover["table"].items()}
+    assert cover.tickets == ("B", "A") and cover.fallbacks == ("C",)
+    uses = {t: use for t, (use, _) in cover.table.items()}
     assert uses == {"t1": "B", "t2": "A", "t3": "B", "t4": "base", "t5": "C"}
 
 

@@ -14,11 +14,12 @@ from pathlib import Path
 
 from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
-from goldenticket.evaluation import ALPHA, Evaluator, Judged, judge
+from goldenticket.evaluation import ALPHA, Evaluator, Judged, VerdictRow, judge
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
 from goldenticket.policies import find_ticket, load_policy
+from goldenticket.results import Cover, TransferCell, TransferStudy
 from goldenticket.stats import holm_adjust
 from goldenticket.tasks import seeds_in
 from goldenticket.tickets import Ticket, zero_ticket
@@ -31,7 +32,7 @@ from goldenticket.workflow import (
 )
 
 
-def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None) -> dict:
+def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None) -> TransferStudy:
     """Find one ticket per task (a single-task search each, in `out/search/<task>`; or take
     `ticket_refs`), run every ticket on every task's held-out seeds, and write the matrix
     (transfer.json, transfer.csv), its heatmap (transfer.png) and the greedy cover; every matrix
@@ -61,9 +62,8 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
             evaluator.progress(cfg.heldout * (len(sources) + 1) * len(tasks), "transfer matrix"):
         evaluator.store = store  # the engine starts first: options it refuses leave no run folder
         per_task = {t.name: judge(evaluator, sources, heldout, base, t.name) for t in tasks}
-    study = matrix(per_task, found_on)
-    study |= {"policy": names.policy, "heldout_seeds": [heldout[0], heldout[-1]]}
-    write_atomic(out / "transfer.json", json.dumps(study, indent=2) + "\n")
+    study = matrix(per_task, found_on, names.policy, heldout)
+    write_atomic(out / "transfer.json", json.dumps(study.to_dict(), indent=2) + "\n")
     write_atomic(out / "transfer.csv", transfer_csv(study))
     transfer_png(study, out / "transfer.png")
     return study
@@ -76,58 +76,53 @@ def _searched_ticket(cfg: SearchConfig, task: str, out: Path) -> Ticket:
     return Ticket.load(Path(find_golden_tickets(single, folder).best.path))
 
 
-def matrix(per_task: dict[str, dict[str, Judged]], found_on: dict[str, list[str]]) -> dict:
+def matrix(per_task: dict[str, dict[str, Judged]], found_on: dict[str, list[str]], policy: str,
+           heldout: list[int]) -> TransferStudy:
     """Each ticket (with the tasks it was found on) on each task: success, gain over base, p vs
     base Holm-adjusted over the tickets on that task; and the greedy cover."""
-    cells = {}
+    cells: dict[str, dict[str, TransferCell]] = {}
     for task, judged in per_task.items():
         adjusted = holm_adjust([judged[t].p_vs_base for t in found_on])
         for ticket, p in zip(found_on, adjusted, strict=True):
             rate, base_rate = judged[ticket].rate.success_rate, judged["base"].rate.success_rate
-            cells.setdefault(ticket, {})[task] = {"success_rate": rate, "gain": rate - base_rate,
-                                                  "p_vs_base": p, "significant": p < ALPHA}
-    baselines = {task: {arm: judged[arm].to_dict() for arm in ("base", "zero")}
+            cells.setdefault(ticket, {})[task] = TransferCell(rate, rate - base_rate, p, p < ALPHA)
+    baselines = {task: {arm: judged[arm].row() for arm in ("base", "zero")}
                  for task, judged in per_task.items()}
-    return {"tasks": list(per_task), "tickets": found_on, "baselines": baselines, "cells": cells,
-            "cover": greedy_cover(cells, baselines)}
+    return TransferStudy(policy, (heldout[0], heldout[-1]), found_on, baselines, cells,
+                         greedy_cover(cells, {task: rows["base"] for task, rows in baselines.items()}))
 
 
-def greedy_cover(cells: dict[str, dict[str, dict]], baselines: dict[str, dict]) -> dict:
+def greedy_cover(cells: dict[str, dict[str, TransferCell]], bases: dict[str, VerdictRow]) -> Cover:
     """The smallest set of tickets (greedy set cover) such that every task a ticket significantly
     improves has one that does; every other task gets the ticket with the highest success there if
-    it beats the base's rate, else the base. Returns the cover's tickets, the other tickets the
-    table uses (`fallbacks`) and the task -> ticket table."""
-    wins = {ticket: {task for task, cell in row.items() if cell["significant"]}
-            for ticket, row in cells.items()}
+    it beats the base's rate (`bases`: each task's base row), else the base."""
+    wins = {ticket: {task for task, cell in row.items() if cell.significant} for ticket, row in cells.items()}
     uncovered, chosen, table = set().union(*wins.values()), [], {}
     while uncovered:
         ticket = max(wins, key=lambda t: (len(wins[t] & uncovered),
-                                          sum(cells[t][task]["gain"] for task in wins[t] & uncovered)))
+                                          sum(cells[t][task].gain for task in wins[t] & uncovered)))
         chosen.append(ticket)
         for task in sorted(wins[ticket] & uncovered):
-            table[task] = {"use": ticket, "significant": True} | cells[ticket][task]
+            table[task] = (ticket, cells[ticket][task])
         uncovered -= wins[ticket]
-    for task in baselines:
+    for task, base in bases.items():
         if task in table:
             continue
-        best = max(cells, key=lambda t: cells[t][task]["success_rate"])
-        if cells[best][task]["gain"] > 0:
-            table[task] = {"use": best} | cells[best][task]
+        best = max(cells, key=lambda t: cells[t][task].success_rate)
+        if cells[best][task].gain > 0:
+            table[task] = (best, cells[best][task])
         else:
-            table[task] = {"use": "base", "significant": False, "gain": 0.0, "p_vs_base": None,
-                           "success_rate": baselines[task]["base"]["success_rate"]}
-    uses = {row["use"] for row in table.values()} - {"base"}
-    return {"tickets": chosen, "fallbacks": sorted(uses - set(chosen)),
-            "table": {task: table[task] for task in baselines}}
+            table[task] = ("base", TransferCell(base.rate.success_rate, 0.0, None, False))
+    uses = {use for use, _ in table.values()} - {"base"}
+    return Cover(tuple(chosen), tuple(sorted(uses - set(chosen))), {task: table[task] for task in bases})
 
 
-def transfer_csv(study: dict) -> str:
+def transfer_csv(study: TransferStudy) -> str:
     """One row per (ticket, task): success, gain over base, Holm-adjusted p, significance."""
     lines = ["ticket,found_on,task,success_rate,base_rate,gain,p_vs_base,significant"]
-    for ticket, found_on in study["tickets"].items():
-        for task, cell in study["cells"][ticket].items():
-            base = study["baselines"][task]["base"]["success_rate"]
-            lines.append(f"{ticket},{'+'.join(found_on)},{task},{cell['success_rate']:.4f},{base:.4f},{cell['gain']:.4f},"
-                         f"{cell['p_vs_base']:.4g},{cell['significant']}")
+    for ticket, found_on in study.tickets.items():
+        for task, cell in study.cells[ticket].items():
+            base = study.baselines[task]["base"].rate.success_rate
+            lines.append(f"{ticket},{'+'.join(found_on)},{task},{cell.success_rate:.4f},{base:.4f},{cell.gain:.4f},"
+                         f"{cell.p_vs_base:.4g},{cell.significant}")
     return "\n".join(lines) + "\n"
-

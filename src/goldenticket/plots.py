@@ -17,6 +17,7 @@ from goldenticket.report import gain_text, short_task
 
 if TYPE_CHECKING:
     from goldenticket.evaluation import MultitaskVerdict
+    from goldenticket.results import TransferStudy
 
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 ARMS = {"base": "base (Gaussian noise)", "zero ticket": "zero ticket", "golden": "golden ticket",
@@ -160,25 +161,24 @@ def tasks_png(verdict: MultitaskVerdict, path: Path, title: str) -> Path:
     return _save(fig, path)
 
 
-def transfer_png(study: dict, path: Path) -> Path:
+def transfer_png(study: TransferStudy, path: Path) -> Path:
     """Ticket x task heatmap of the gain over each task's base; * marks a significant gain
     (Holm-adjusted p < 0.05), a box the cover's choice for each task."""
-    tickets, tasks = list(study["tickets"]), study["tasks"]
-    gains = [[study["cells"][t][task]["gain"] for task in tasks] for t in tickets]
+    tickets, tasks = list(study.tickets), study.tasks
+    gains = [[study.cells[t][task].gain for task in tasks] for t in tickets]
     fig = Figure(figsize=(5.5 + 0.8 * len(tasks), 2.2 + 0.45 * len(tickets)))
     ax = fig.subplots()
     limit = max(0.05, max(abs(g) for row in gains for g in row))
     image = ax.imshow(gains, cmap="RdBu", vmin=-limit, vmax=limit, aspect="auto")
     for i, ticket in enumerate(tickets):
         for j, task in enumerate(tasks):
-            cell = study["cells"][ticket][task]
-            ax.text(j, i, gain_text(cell), ha="center",
-                    va="center", fontsize="small",
-                    color="white" if abs(cell["gain"]) > limit / 2 else "black")
-            if study["cover"]["table"][task]["use"] == ticket:
+            cell = study.cells[ticket][task]
+            ax.text(j, i, gain_text(cell.gain, cell.significant), ha="center", va="center", fontsize="small",
+                    color="white" if abs(cell.gain) > limit / 2 else "black")
+            if study.cover.table[task][0] == ticket:
                 ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, linewidth=2, color="goldenrod"))
     ax.set_xticks(range(len(tasks)), [short_task(t) for t in tasks], rotation=40, ha="right")
-    ax.set_yticks(range(len(tickets)), [f"{t} ({', '.join(map(short_task, study['tickets'][t]))})"
+    ax.set_yticks(range(len(tickets)), [f"{t} ({', '.join(map(short_task, study.tickets[t]))})"
                                         for t in tickets])
     ax.set(title="gain over base, points (* significant; box: the cover's pick)",
            xlabel="evaluated on", ylabel="ticket (found on)")

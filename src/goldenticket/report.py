@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from goldenticket.evaluation import VerdictRow
-    from goldenticket.results import MultitaskSummary
+    from goldenticket.results import MultitaskSummary, TransferStudy
 
 
 def p_vs_base(row: dict) -> float | None:
@@ -135,29 +135,29 @@ def multitask_text(summary: MultitaskSummary) -> str:
                               "better than the ticket on that task, p < 0.05 (not adjusted)."])
 
 
-def gain_text(cell: dict) -> str:
+def gain_text(gain: float, significant: bool) -> str:
     """A transfer-matrix cell: the gain over the base in points, * when significant."""
-    return f"{100 * cell['gain']:+.0f}{'*' if cell['significant'] else ''}"
+    return f"{100 * gain:+.0f}{'*' if significant else ''}"
 
 
-def transfer_text(study: dict) -> str:
+def transfer_text(study: TransferStudy) -> str:
     """The transfer matrix (gain over base in points, * significant) and the cover's switching table."""
-    tasks = study["tasks"]
+    tasks = study.tasks
     header = ("ticket (found on)", *[short_task(t) for t in tasks])
-    rows = [(f"{ticket} ({', '.join(short_task(t) for t in found)})", *[gain_text(study["cells"][ticket][t])
-                                                                     for t in tasks])
-            for ticket, found in study["tickets"].items()]
-    cover = study["cover"]
-    switching = [(short_task(task), row["use"], f"{row['success_rate']:.1%}",
-                  f"{study['baselines'][task]['base']['success_rate']:.1%}",
-                  "significant" if row["significant"] else "")
-                 for task, row in cover["table"].items()]
-    covered = sum(row["significant"] for row in cover["table"].values())
+    rows = [(f"{ticket} ({', '.join(short_task(t) for t in found)})",
+             *[gain_text(study.cells[ticket][t].gain, study.cells[ticket][t].significant) for t in tasks])
+            for ticket, found in study.tickets.items()]
+    cover = study.cover
+    switching = [(short_task(task), use, f"{cell.success_rate:.1%}",
+                  f"{study.baselines[task]['base'].rate.success_rate:.1%}",
+                  "significant" if cell.significant else "")
+                 for task, (use, cell) in cover.table.items()]
+    covered = sum(cell.significant for _, cell in cover.table.values())
     return "\n".join([
         "Gain over each task's base (points) on the held-out seeds; * Holm-adjusted p < 0.05:",
         _columns(header, rows), "",
-        f"Greedy cover: {len(cover['tickets'])} ticket(s) ({', '.join(cover['tickets']) or 'none'}) "
+        f"Greedy cover: {len(cover.tickets)} ticket(s) ({', '.join(cover.tickets) or 'none'}) "
         f"significantly better than the base on {covered} of {len(tasks)} tasks; every other task uses "
         "the ticket with its best success if that beats the base "
-        f"({', '.join(cover['fallbacks']) or 'none'}), else the base. The switching table:",
+        f"({', '.join(cover.fallbacks) or 'none'}), else the base. The switching table:",
         _columns(("task", "use", "success", "base", ""), switching)])

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from goldenticket.evaluation import MultitaskVerdict, VerdictRow, p_value_note
+from goldenticket.evaluation import MultitaskVerdict, VerdictRow, p_value_note, to_dicts
 
 
 def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
@@ -85,6 +85,60 @@ class Summary:
         return {"task": self.task} | self.run.to_dict() | {
             "base": self.base.to_dict(), "zero": self.zero.to_dict(), "best": self.best.to_dict(),
             "tickets": [t.to_dict() for t in self.tickets], "p_value_note": self.p_value_note} | front
+
+
+@dataclass(frozen=True)
+class TransferCell:
+    """One ticket on one task: success, gain over the task's base, p vs base Holm-adjusted over the
+    tickets on that task (None: the base itself), and whether that p is below ALPHA."""
+
+    success_rate: float
+    gain: float
+    p_vs_base: float | None
+    significant: bool
+
+    def to_dict(self) -> dict:
+        return {"success_rate": self.success_rate, "gain": self.gain, "p_vs_base": self.p_vs_base,
+                "significant": self.significant}
+
+
+@dataclass(frozen=True)
+class Cover:
+    """The greedy cover: its tickets, the other tickets the switching table uses, and per task the
+    ticket to run ("base": none) with its cell."""
+
+    tickets: tuple[str, ...]
+    fallbacks: tuple[str, ...]
+    table: dict[str, tuple[str, TransferCell]]
+
+    def to_dict(self) -> dict:
+        return {"tickets": list(self.tickets), "fallbacks": list(self.fallbacks),
+                "table": {task: {"use": use} | cell.to_dict() for task, (use, cell) in self.table.items()}}
+
+
+@dataclass(frozen=True)
+class TransferStudy:
+    """Every ticket (with the tasks it was found on) on every task's held-out seeds: base and zero
+    rows per task, a cell per (ticket, task), and the greedy cover."""
+
+    policy: str
+    heldout_seeds: tuple[int, int]
+    tickets: dict[str, list[str]]
+    baselines: dict[str, dict[str, VerdictRow]]  # task -> "base" and "zero" rows
+    cells: dict[str, dict[str, TransferCell]]  # ticket -> task -> cell
+    cover: Cover
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(self.baselines)
+
+    def to_dict(self) -> dict:
+        """transfer.json."""
+        cells = {t: {task: cell.to_dict() for task, cell in row.items()} for t, row in self.cells.items()}
+        return {"tasks": self.tasks, "tickets": self.tickets,
+                "baselines": {task: to_dicts(rows) for task, rows in self.baselines.items()}, "cells": cells,
+                "cover": self.cover.to_dict(), "policy": self.policy,
+                "heldout_seeds": list(self.heldout_seeds)}
 
 
 @dataclass(frozen=True)
