@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import copy
 import ctypes.util
 import os
+from collections import OrderedDict
 from dataclasses import dataclass
 from functools import cache
 
@@ -42,6 +44,11 @@ STATE_DIM = 39  # Meta-World's goal-observable state vector
 # positions), found by comparing every array of every task's model before and after resets.
 SHARED_MODEL_WRITES = ("body_pos", "site_pos")
 
+# A kept reset takes ~0.55 MB of memory, nearly all of it its MjData copy (175 KB of arrays, the
+# rest what MuJoCo's bindings hold per MjData): 128 add ~70 MB to a worker, and hold a search's
+# seeds and a 100-seed validation set of one task.
+RESET_CACHE_SIZE = 128
+
 
 class MetaWorldEnv:
     """A goal-observable Meta-World env whose reset(seed) fixes object and goal positions.
@@ -54,18 +61,28 @@ class MetaWorldEnv:
     and all envs of one task in a process share one Meta-World env and its MuJoCo model (20 MB
     of meshes and textures each otherwise): each env has its own MjData, its own attributes
     (swapped in as the shared env's `__dict__`) and its own copy of the model arrays Meta-World
-    writes. `fast=False` is a plain Meta-World env, for comparison.
+    writes. The first reset of a seed in a process is Meta-World's (~20 ms of MuJoCo steps moving
+    the arm into place); what it produced is kept (`_Reset`, the last RESET_CACHE_SIZE of all
+    tasks) and the seed's later resets in any env of the task restore it (~1 ms), unless
+    `cache_resets=False`. `fast=False` is a plain Meta-World env, for comparison: no cache.
     """
 
-    def __init__(self, env_name: str, fast: bool = True):
+    def __init__(self, env_name: str, fast: bool = True, cache_resets: bool = True):
         self._host = shared_host(env_name) if fast else _Host(_configured(env_name))
         self._attributes = self._host.fresh_attributes()
         self._model_arrays = self._host.fresh_model_arrays()
+        self._name, self._cache_resets = env_name, cache_resets and fast
 
     def reset(self, seed: int) -> np.ndarray:
-        env = self._host.lend(self)
-        env.np_random = np.random.Generator(np.random.PCG64(seed))
-        obs, _ = env.reset()
+        env, key = self._host.lend(self), (self._name, seed)
+        kept = _kept(key) if self._cache_resets else None
+        if kept is not None:
+            obs = kept.restored(env)
+        else:
+            env.np_random = np.random.Generator(np.random.PCG64(seed))
+            obs, _ = env.reset()
+            if self._cache_resets:
+                _keep(key, _Reset.of(env, obs))
         self._last = (np.zeros(env.action_space.shape), obs)  # (last action, observation): progress()
         return obs.astype(np.float32)
 
@@ -96,8 +113,7 @@ class _Host:
     def __init__(self, env, shared: bool = False):
         self.env, self.borrower = env, None
         self._attributes = _copied(vars(env)) if shared else None  # as constructed, before any reset
-        self._model_arrays = {name: getattr(env.model, name).copy() for name in SHARED_MODEL_WRITES} \
-            if shared else {}
+        self._model_arrays = _written_model_arrays(env.model) if shared else {}
 
     def fresh_attributes(self) -> dict:
         """The env's attributes as constructed with their own arrays and MjData; unshared: the env's own."""
@@ -126,7 +142,85 @@ class _Host:
 
 
 def _copied(values: dict) -> dict:
-    return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in values.items()}
+    """`values` with their own arrays and random generators (the rest is replaced, never changed in place)."""
+    return {k: v.copy() if isinstance(v, np.ndarray)
+            else copy.deepcopy(v) if isinstance(v, np.random.Generator) else v for k, v in values.items()}
+
+
+def _written_model_arrays(model) -> dict[str, np.ndarray]:
+    return {name: getattr(model, name).copy() for name in SHARED_MODEL_WRITES}
+
+
+@dataclass(frozen=True)
+class _Reset:
+    """What one Meta-World reset produced: the env's attributes with their own MjData and arrays,
+    which of them view that MjData, the model arrays it wrote and the observation. Never changed:
+    an env restoring it gets copies."""
+
+    attributes: dict
+    views: dict[str, str]
+    model_arrays: dict[str, np.ndarray]
+    obs: np.ndarray
+
+    @classmethod
+    def of(cls, env, obs: np.ndarray) -> _Reset:
+        views = _data_views(vars(env))
+        return cls(_with_data_copy(vars(env), views), views, _written_model_arrays(env.model), obs.copy())
+
+    def restored(self, env) -> np.ndarray:
+        """The observation, once `env` (lent) holds this reset's state."""
+        attributes = _with_data_copy(self.attributes, self.views)
+        vars(env).clear()  # in place: the dict is the borrower's
+        vars(env).update(attributes)
+        for name, saved in self.model_arrays.items():
+            np.copyto(getattr(env.model, name), saved)
+        return self.obs.copy()
+
+
+_resets: OrderedDict[tuple[str, int], _Reset] = OrderedDict()  # by (env name, seed), least recent first
+
+
+def _kept(key: tuple[str, int]) -> _Reset | None:
+    reset = _resets.get(key)
+    if reset is not None:
+        _resets.move_to_end(key)
+    return reset
+
+
+def _keep(key: tuple[str, int], reset: _Reset) -> None:
+    _resets[key] = reset
+    if len(_resets) > RESET_CACHE_SIZE:
+        _resets.popitem(last=False)
+
+
+def _data_views(attributes: dict) -> dict[str, str]:
+    """The env's arrays that view its MjData's (pick-place's initial pad positions, a few tasks' goals:
+    they follow the simulation), each with the MjData array it views."""
+    data = attributes["data"]
+    fields = {name: field for name in dir(data)
+              if not name.startswith("_") and isinstance(field := getattr(data, name), np.ndarray)}
+    return {key: name for key, value in attributes.items()
+            if isinstance(value, np.ndarray) and not value.flags.owndata
+            for name, field in fields.items() if 0 <= _offset(value, field) < field.nbytes}
+
+
+def _with_data_copy(attributes: dict, views: dict[str, str]) -> dict:
+    """An env's attributes with MuJoCo's full copy of its MjData (state, derived quantities, contacts,
+    warm start: all that is read before the next step), copies of its arrays, and `views` (as
+    `_data_views`) the same views of the copy."""
+    old = attributes["data"]
+    new = copy.copy(old)
+    values = _copied(attributes) | {"data": new}
+    for key, name in views.items():
+        view = attributes[key]
+        offset = _offset(view, getattr(old, name))
+        values[key] = np.ndarray(view.shape, view.dtype, getattr(new, name), offset, view.strides)
+    return values
+
+
+def _offset(view: np.ndarray, base: np.ndarray) -> int:
+    """Bytes from `base`'s first element to `view`'s."""
+    return view.__array_interface__["data"][0] - base.__array_interface__["data"][0]
 
 
 @cache
