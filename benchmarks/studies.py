@@ -17,7 +17,6 @@ Every run lives in `--runs` (run stores, resumable per episode).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -39,8 +38,8 @@ def pareto(task: str, runs: Path, workers: int) -> dict:
     cfg = SearchConfig(f"metaworld/{task}/flow", f"metaworld/{task}", method="rs", budget=1000,
                        search_seeds=10, heldout=100, top_k=3, stop_after_perfect=None, workers=workers,
                        front_objective="speed", validation_seeds=0)
-    summary = find_golden_tickets(cfg, runs / f"pareto_{task}").to_dict()
-    return json.loads((runs / f"pareto_{task}" / "front.json").read_text()) | {"summary": summary}
+    summary = find_golden_tickets(cfg, runs / f"pareto_{task}")
+    return summary.front.to_dict() | {"summary": summary.to_dict()}
 
 
 def mixture(task: str, pareto_summary: dict, workers: int) -> dict:

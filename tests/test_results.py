@@ -54,6 +54,6 @@ def test_the_job_returns_its_summary_typed_and_writes_it_as_summary_json(tmp_pat
         assert ticket.id == found.id and found.validation_score is not None
         seeds = list(summary.run.heldout_seeds)
         assert ticket.metadata["heldout"] == found.heldout.to_dict() | {"seeds": seeds}
-    assert set(summary.front) <= {p.stem for p in (tmp_path / "tickets").iterdir()}
+    assert set(summary.front.tickets) <= {p.stem for p in (tmp_path / "tickets").iterdir()}
     assert summary.base.rate.n == summary.zero.rate.n == 20
     assert summary.run.policy == "byo_example:make_policy"

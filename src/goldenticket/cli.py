@@ -313,8 +313,8 @@ def _run_search(cfg, out: Path) -> int:
         return 0
     print(verdict_text(s.rows(), s.best.heldout, s.best.name, s.p_value_note))
     if s.front is not None:
-        print(f"Pareto front ({cfg.objective} vs {cfg.front_objective}): {len(s.front)} tickets "
-              f"({', '.join(s.front)}), judged on the held-out seeds in {out / 'front.json'} and "
+        print(f"Pareto front ({cfg.objective} vs {cfg.front_objective}): {len(s.front.tickets)} tickets "
+              f"({', '.join(s.front.tickets)}), judged on the held-out seeds in {out / 'front.json'} and "
               f"front.png; their files are in {out / 'tickets'}.")
     print(f"Best ticket saved to {s.best.path}. Wrote {out / 'summary.json'}, "
           f"verdict.png and search.png in {time.perf_counter() - start:.0f} s.")

@@ -17,7 +17,7 @@ from goldenticket.report import gain_text, short_task
 
 if TYPE_CHECKING:
     from goldenticket.evaluation import MultitaskVerdict
-    from goldenticket.results import TransferStudy
+    from goldenticket.results import ParetoFront, TransferStudy
 
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 ARMS = {"base": "base (Gaussian noise)", "zero ticket": "zero ticket", "golden": "golden ticket",
@@ -109,23 +109,22 @@ def _legend(ax) -> None:
     ax.legend(unique.values(), unique.keys(), loc="upper left", bbox_to_anchor=(1.01, 1), fontsize="small")
 
 
-def front_png(study: dict, path: Path) -> Path:
+def front_png(study: ParetoFront, path: Path) -> Path:
     """Left: every ticket's two search scores, the Pareto front in gold. Right: the front, the
     base and the zero ticket re-judged on held-out seeds."""
-    x_name, y_name = study["objectives"]
+    x_name, y_name = study.objectives
     fig = Figure(figsize=(10, 4.2))
     search, heldout = fig.subplots(1, 2)
-    for entry in study["search"]:
-        front = entry["front"]
-        search.scatter(entry["scores"][x_name], entry["scores"][y_name], s=40 if front else 14,
+    for _, scores, front in study.search:
+        search.scatter(scores[x_name], scores[y_name], s=40 if front else 14,
                        color=COLORS["golden"] if front else "0.6", zorder=3 if front else 2)
-    for label, row in study["heldout"].items():
+    for label, arm in study.heldout.items():
         kind = label if label in ("base", "zero") else "front"
         color = {"base": COLORS["base"], "zero": COLORS["zero ticket"], "front": COLORS["golden"]}[kind]
-        heldout.scatter(row["scores"][x_name], row["scores"][y_name], color=color, s=40, zorder=3)
-        heldout.annotate(label, (row["scores"][x_name], row["scores"][y_name]), xytext=(4, 4),
+        heldout.scatter(arm.scores[x_name], arm.scores[y_name], color=color, s=40, zorder=3)
+        heldout.annotate(label, (arm.scores[x_name], arm.scores[y_name]), xytext=(4, 4),
                          textcoords="offset points", fontsize="x-small")
-    seeds = study["heldout_seeds"]
+    seeds = study.heldout_seeds
     search.set(title="search seeds: every ticket (front in gold)", xlabel=x_name, ylabel=y_name)
     heldout.set(title=f"held-out seeds {seeds[0]}..{seeds[1]}: front, base, zero", xlabel=x_name,
                 ylabel=y_name)

@@ -56,16 +56,52 @@ class SearchRun:
 
 
 @dataclass(frozen=True)
+class FrontArm:
+    """An arm judged with a Pareto front: its held-out row, its score per objective there, and the
+    front ticket's file (None for base and zero)."""
+
+    row: VerdictRow
+    scores: dict[str, float]
+    ticket_path: str | None = None
+
+    def to_dict(self) -> dict:
+        path = {} if self.ticket_path is None else {"ticket_path": self.ticket_path}
+        return self.row.to_dict() | {"scores": self.scores} | path
+
+
+@dataclass(frozen=True)
+class ParetoFront:
+    """The tickets no other ticket beats on both objectives: every scored ticket's search scores
+    (`search`: (ticket id, scores, on the front)), and base, zero and the front judged on held-out
+    seeds (`heldout`)."""
+
+    objectives: tuple[str, str]
+    heldout_seeds: tuple[int, int]
+    search: tuple[tuple[str, dict[str, float], bool], ...]
+    heldout: dict[str, FrontArm]
+
+    @property
+    def tickets(self) -> tuple[str, ...]:
+        return tuple(label for label in self.heldout if label not in ("base", "zero"))
+
+    def to_dict(self) -> dict:
+        """front.json."""
+        search = [{"ticket_id": t, "scores": scores, "front": front} for t, scores, front in self.search]
+        return {"objectives": list(self.objectives), "heldout_seeds": list(self.heldout_seeds),
+                "search": search, "heldout": {label: arm.to_dict() for label, arm in self.heldout.items()}}
+
+
+@dataclass(frozen=True)
 class Summary:
     """The job's result on one task: base, zero ticket and the tickets judged (best first, p-values
-    Holm-adjusted over them), and the ids on the Pareto front when there is one."""
+    Holm-adjusted over them), and the Pareto front when there is one."""
 
     task: str
     run: SearchRun
     base: VerdictRow
     zero: VerdictRow
     tickets: tuple[FoundTicket, ...]
-    front: tuple[str, ...] | None = None
+    front: ParetoFront | None = None
 
     @property
     def best(self) -> FoundTicket:
@@ -81,7 +117,7 @@ class Summary:
 
     def to_dict(self) -> dict:
         """summary.json."""
-        front = {} if self.front is None else {"front": list(self.front)}
+        front = {} if self.front is None else {"front": list(self.front.tickets)}
         return {"task": self.task} | self.run.to_dict() | {
             "base": self.base.to_dict(), "zero": self.zero.to_dict(), "best": self.best.to_dict(),
             "tickets": [t.to_dict() for t in self.tickets], "p_value_note": self.p_value_note} | front

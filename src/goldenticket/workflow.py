@@ -26,7 +26,7 @@ from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.plots import arms_png, search_png, tasks_png
 from goldenticket.policies import NoisePolicy, find_ticket, for_task, identity, load_policy, policy_label
-from goldenticket.results import FoundTicket, MultitaskSummary, SearchRun, Summary
+from goldenticket.results import FoundTicket, MultitaskSummary, ParetoFront, SearchRun, Summary
 from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
 from goldenticket.studies.pareto import pareto_study
@@ -166,10 +166,10 @@ def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket], seed
 
 
 def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: SearchResult, seeds: tuple,
-           baselines: tuple, expand: Callable, max_steps: int, out: Path) -> tuple[tuple[str, ...], dict]:
+           baselines: tuple, expand: Callable, max_steps: int, out: Path) -> tuple[ParetoFront, dict]:
     """The Pareto front of the search's tickets for (objective, front objective), judged on the
-    held-out seeds; its tickets saved, front.json and front.png written. Returns the front's ticket
-    ids and each one's front metadata by id."""
+    held-out seeds; its tickets saved, front.json and front.png written. Returns the front and each
+    front ticket's front metadata by id."""
     search_seeds, heldout = seeds
     scored = {}
     for candidate in result.candidates:
@@ -187,8 +187,8 @@ def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: Search
     with evaluator.progress(None, "Pareto front"):  # its size is known only once found
         study = pareto_study(evaluator, scored, (cfg.objective, cfg.front_objective), max_steps=max_steps,
                              heldout=heldout, base=baselines[0], zero=baselines[1], save=save, out=out)
-    write_atomic(out / "front.json", json.dumps(study, indent=2) + "\n")
-    return tuple(label for label in study["heldout"] if label not in ("base", "zero")), fronts
+    write_atomic(out / "front.json", json.dumps(study.to_dict(), indent=2) + "\n")
+    return study, fronts
 
 
 @dataclass(frozen=True)
@@ -301,7 +301,7 @@ def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, sp
 
 
 def _summary(names: Names, judged: dict[str, Judged], tickets: list[Ticket], run: SearchRun, out: Path,
-             fronts: dict[str, dict], front: tuple[str, ...] | None) -> Summary:
+             fronts: dict[str, dict], front: ParetoFront | None) -> Summary:
     """One task's verdict: p-values Holm-adjusted over the tickets, each ticket saved with its
     held-out result, the best first."""
     adjust_for_multiplicity(judged, [t.id for t in tickets])

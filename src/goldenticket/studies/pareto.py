@@ -9,6 +9,7 @@ deployed `TicketedPolicy` switches between front tickets with `use()`, keeping t
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ import numpy as np
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
 from goldenticket.noise import NoiseSource
 from goldenticket.plots import front_png
+from goldenticket.results import FrontArm, ParetoFront
 from goldenticket.rollout import EpisodeResult
 from goldenticket.tasks import OBJECTIVES
 from goldenticket.ticket_search import Candidate
@@ -45,27 +47,23 @@ def non_dominated(points: Sequence[tuple[float, float]]) -> list[int]:
 def pareto_study(evaluator: Evaluator, scored: dict[str, tuple[NoiseSource, Candidate]],
                  objectives: tuple[str, str], *, max_steps: int, heldout: Sequence[int],
                  base: NoiseSource, zero: NoiseSource, save: Callable[[Candidate, dict], str],
-                 out: Path) -> dict:
+                 out: Path) -> ParetoFront:
     """The front among the `scored` tickets (label -> its noise source and search candidate),
     judged on `heldout` beside base and zero; `save(candidate, front_metadata)` writes a front
-    ticket and returns its path. Writes `front.png` into `out` and returns what front.json holds."""
+    ticket and returns its path. Writes `front.png` into `out`."""
     labels = list(scored)
     searched = evaluator.run([(label, source, c.seeds) for label, (source, c) in scored.items()])
-    points = [tuple(_scores(objectives, runs, max_steps).values()) for runs in searched]
-    front = [labels[i] for i in non_dominated(points)]
+    points = [_scores(objectives, runs, max_steps) for runs in searched]
+    front = [labels[i] for i in non_dominated([tuple(p.values()) for p in points])]
     arms = {"base": base, "zero": zero} | {label: scored[label][0] for label in front}
     judged = judge(evaluator, {k: v for k, v in arms.items() if k != "base"}, heldout, base)
     adjust_for_multiplicity(judged, front)
-    rows = {label: judged[label].to_dict() | {"scores": _scores(objectives, judged[label].results, max_steps)}
+    rows = {label: FrontArm(judged[label].row(), _scores(objectives, judged[label].results, max_steps))
             for label in arms}
     for label in front:
-        rows[label]["ticket_path"] = save(scored[label][1], {"objectives": list(objectives),
-                                                             "heldout": dict(rows[label])})
-    study = {"objectives": list(objectives), "heldout_seeds": [heldout[0], heldout[-1]],
-             "search": [{"ticket_id": label, "scores": dict(zip(objectives, p, strict=True)),
-                         "front": label in front} for label, p in zip(labels, points, strict=True)],
-             "heldout": rows}
+        metadata = {"objectives": list(objectives), "heldout": rows[label].to_dict()}
+        rows[label] = replace(rows[label], ticket_path=save(scored[label][1], metadata))
+    search = tuple((label, p, label in front) for label, p in zip(labels, points, strict=True))
+    study = ParetoFront(objectives, (heldout[0], heldout[-1]), search, rows)
     front_png(study, out / "front.png")
     return study
-
-
