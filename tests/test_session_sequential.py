@@ -16,7 +16,7 @@ from scipy.integrate import quad
 from test_session import _client, _free_port, _plan, _server
 
 from goldenticket import stats
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 from goldenticket.session import Client, Plan, ScoreConflict, Session, protocol
 
 POLICY = "metaworld/pick-place-v3/flow"
@@ -215,7 +215,7 @@ def test_plans_without_a_stopping_rule_open_as_fixed_and_bad_plans_are_refused(t
     con.commit()
     assert Session(tmp_path).plan.stopping == "fixed" and Session(tmp_path).status()["total"] == 15
     for bad in ({"alpha": 1.5}, {"stopping": "whenever"}, {"confirm": 4}, {"confirm": 1001}):
-        with pytest.raises(UserError, match="--alpha|--stopping|--confirm"):
+        with pytest.raises(OptionError, match="^(alpha|stopping|under sequential stopping confirm) "):
             _sequential(**bad)
 
 

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import fisher_exact
 
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 from goldenticket.files import write_atomic
 from goldenticket.stats import Rate, Sequential, holm_adjust, paired_exact_test, sequential_sign_test
 from goldenticket.tickets import Ticket
@@ -82,21 +82,24 @@ class Plan:
 
     def __post_init__(self) -> None:
         if self.stopping not in STOPPING:
-            raise UserError(f"--stopping must be one of {', '.join(STOPPING)}, got {self.stopping!r}")
+            raise OptionError(f"stopping must be one of {', '.join(STOPPING)}, got {self.stopping!r}",
+                              "stopping")
         if not 0 < self.alpha < 1:
-            raise UserError(f"--alpha must be between 0 and 1, got {self.alpha}")
+            raise OptionError(f"alpha must be between 0 and 1, got {self.alpha}", "alpha")
         for name, value, least in (("tickets", self.tickets, 2), ("confirm", self.confirm, 1),
-                                   ("episodes-per-ticket", self.episodes_per_ticket, 1)):
+                                   ("episodes_per_ticket", self.episodes_per_ticket, 1)):
             if value < least:
                 why = " (the confirm phase takes the top 2)" if name == "tickets" else ""
-                raise UserError(f"--{name} must be at least {least}{why}, got {value}")
+                raise OptionError(f"{name} must be at least {least}{why}, got {value}", name)
         if self.episodes > MAX_EPISODES:
-            raise UserError(f"a session plans at most {MAX_EPISODES} episodes (tickets x episodes-per-ticket "
-                            f"+ {self.arms} x confirm), got {self.episodes}")
+            raise OptionError(f"a session plans at most {MAX_EPISODES} episodes (tickets x "
+                              f"episodes_per_ticket + {self.arms} x confirm), got {self.episodes}",
+                              "tickets", "episodes_per_ticket", "confirm")
         least = math.floor(math.log2(1 / self.alpha)) + 1  # fewer pairs cannot reach the level alpha
         if self.stopping == "sequential" and not least <= self.confirm <= MAX_CAP:
-            raise UserError(f"under sequential stopping --confirm (the cap of pairs) must be between {least} "
-                            f"(for --alpha {self.alpha}) and {MAX_CAP}, got {self.confirm}")
+            raise OptionError(f"under sequential stopping confirm (the cap of pairs) must be between {least} "
+                              f"(for alpha {self.alpha}) and {MAX_CAP}, got {self.confirm}",
+                              "confirm", "alpha")
 
     @property
     def first_round(self) -> int:

@@ -31,7 +31,7 @@ from importlib.resources import files
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 from goldenticket.session.protocol import ScoreConflict, Session, StoreLost
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
@@ -104,7 +104,7 @@ def serve(folder: str | Path, host: str = "127.0.0.1", port: int = 8765, token: 
     if host not in LOCAL_HOSTS and not token:
         raise UserError(f"binding to {host} exposes the session to the network: pass --token")
     if not 0 < port < 65536:
-        raise UserError(f"--port must be in 1..65535, got {port}")
+        raise OptionError(f"port must be in 1..65535, got {port}", "port")
     app = make_app(folder, token, host)
     _check_free(host, port)
     print(f"Session {folder}: operator page at http://{host}:{port}/"
