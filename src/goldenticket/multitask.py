@@ -73,7 +73,7 @@ def _searched_ticket(cfg: SearchConfig, task: str, out: Path) -> Ticket:
     """The top search ticket of a single-task search on `task` (judged there on the held-out seeds)."""
     folder = out / "search" / task.replace("/", "_")
     single = replace(cfg, task=task, top_k=1, no_regression=False, validation_seeds=cfg.validation())
-    return Ticket.load(Path(find_golden_tickets(single, folder).best.path))
+    return find_golden_tickets(single, folder).best.ticket
 
 
 def matrix(per_task: dict[str, dict[str, Judged]], found_on: dict[str, list[str]], policy: str,

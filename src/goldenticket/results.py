@@ -3,9 +3,10 @@ a file or the public API is written (`to_dict`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from goldenticket.evaluation import MultitaskVerdict, VerdictRow, p_value_note, to_dicts
+from goldenticket.tickets import Ticket
 
 
 def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
@@ -16,7 +17,8 @@ def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow])
 @dataclass(frozen=True)
 class FoundTicket:
     """A ticket the job judged: its id and file, its held-out verdict, its mean return on the search
-    and validation seeds (None: not scored there) and, if not the search's, where it came from."""
+    and validation seeds (None: not scored there), if not the search's, where it came from, and the
+    ticket itself (noise and metadata, as saved)."""
 
     id: str
     path: str
@@ -24,6 +26,7 @@ class FoundTicket:
     heldout: VerdictRow
     validation_score: float | None = None
     source: str | None = None  # "zero ticket" or "given: <ticket>"
+    ticket: Ticket | None = field(default=None, repr=False, compare=False)
 
     @property
     def name(self) -> str:

@@ -296,7 +296,7 @@ def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, sp
             t.metadata["front"] = fronts[t.id]
         path = t.save(out / "tickets" / f"{t.id}.safetensors")
         found.append(FoundTicket(t.id, str(path), t.metadata["search_score"], row,
-                                 t.metadata.get("validation_score"), t.metadata.get("source")))
+                                 t.metadata.get("validation_score"), t.metadata.get("source"), t))
     return tuple(found)
 
 
