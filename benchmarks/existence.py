@@ -36,8 +36,9 @@ from goldenticket.workflow import evaluate_tickets, find_golden_tickets
 
 HERE = Path(__file__).parent
 POLICIES = ("flow", "ddim@8", "ddim@2")
-SETTINGS = dict(method="cma-es", budget=2000, seed=0, search_seeds=20, validation_seeds=100, heldout=200,
-                top_k=3)  # the `search` defaults
+DEFAULTS = SearchConfig("", "")  # the `search` defaults, as a user gets them
+SETTINGS = {name: getattr(DEFAULTS, name) for name in ("method", "budget", "seed", "search_seeds")} | {
+    "validation_seeds": DEFAULTS.validation(), "heldout": DEFAULTS.heldout, "top_k": DEFAULTS.top_k}
 FRESH = 200  # fresh held-out seeds for each pair's best ticket, after the judged ones
 WEAK_BASE = 0.85  # the generalisation targets are over the pairs whose base succeeds at most this often
 
