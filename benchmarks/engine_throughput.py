@@ -1,30 +1,37 @@
 """Engine env steps/s against the raw stock-env step rate, measured in the same run.
 
-Raw: one stock Meta-World env stepped with random actions, no policy, no bookkeeping.
-Fast: our Meta-World env (`tasks/metaworld_fast.py`, the same episodes to the bit) in the same loop.
-Engine: the bundled policy's episodes through `Engine` (policy calls, noise, resets included),
-with 1 ... `--workers` workers, on local processes and, if Ray is installed, on Ray actors of a
-local Ray instance; and the peak resident memory of a local worker process (VmHWM; a shard of 16
-episodes, so 16 envs; measured with 2 or more workers, as 1 runs in-process). Profile: one
-policy call on a shard's 16 rows, in ms, split into matrix products, activations, other torch
-ops and the rest (Python, dispatch, conversions), beside the env time of the 16 x n_exec steps
-that call serves. Prints each rate and its ratio to the raw rate, or with `--json` one JSON
-object {"raw": steps/s, "fast": steps/s, "engine": {workers: steps/s}, "ray": {workers:
-steps/s}, "peak_rss_mb", "policy_call_ms": {part: ms}}.
+Raw: one stock Meta-World env stepped with random actions, no policy, no bookkeeping, reset when
+Meta-World says done (500 steps). Fast: our Meta-World env (`tasks/metaworld_fast.py`, the same
+episodes to the bit) in the same loop; "fast, 150-step episodes": reset every 150 steps as well,
+the engine's limit, on the engine's seeds in turn. Engine: the bundled policy's episodes through
+`Engine` (policy calls, noise, resets included), with 1 ... `--workers` workers, on local
+processes and, if Ray is installed, on Ray actors of a local Ray instance; `--episodes` of them
+as a search runs them: `--seeds` search seeds, each with a new noise source per round. Also the
+peak resident memory of a local worker process (VmHWM; a shard of 16 episodes, so 16 envs;
+measured with 2 or more workers, as 1 runs in-process). Profile: one policy call on a shard's 16
+rows, in ms, split into matrix products, activations, other torch ops and the rest (Python,
+dispatch, conversions), beside the env time of the 16 x n_exec steps that call serves.
+`--no-reset-cache`: every reset is Meta-World's, as before the reset cache. Prints each rate and
+its ratio to the raw rate, or with `--json` one JSON object {"raw": steps/s, "fast": steps/s,
+"fast_150": steps/s, "engine": {workers: steps/s}, "ray": {workers: steps/s}, "peak_rss_mb",
+"policy_call_ms": {part: ms}, "reset_cache": bool, "seeds": n}.
 Writes benchmarks/results/engine_throughput.{json,png} (the PNG: steps/s against workers, with
 the ideal W x raw line).
 
-    python benchmarks/engine_throughput.py [--episodes 200] [--workers 2] [--json]
+    python benchmarks/engine_throughput.py [--episodes 200] [--seeds 20] [--workers 2]
+                                           [--no-reset-cache] [--json]
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
+import itertools
 import json
 import os
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -34,9 +41,20 @@ from goldenticket.policies import load_policy
 from goldenticket.rollout import Engine, Episode
 from goldenticket.tasks import get_task, seeds_in
 from goldenticket.tasks.base import stack
-from goldenticket.tasks.metaworld import MetaWorldEnv
+from goldenticket.tasks.metaworld import MetaWorldEnv, MetaWorldTask
 
 POLICY, TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
+MAX_STEPS = 150  # the engine's episode limit (MetaWorldTask.max_steps)
+RATE_LABELS = {"raw": "raw stock env, 1 process:", "fast": "fast path env, 1 process:",
+               "fast_150": "fast, 150-step episodes, 1 process:"}
+
+
+@dataclass(frozen=True)
+class UncachedTask(MetaWorldTask):
+    """A Meta-World task whose every reset is Meta-World's: no reset cache."""
+
+    def make_env(self) -> MetaWorldEnv:
+        return MetaWorldEnv(self.env_name, cache_resets=False)
 
 
 def raw_steps_per_second() -> float:
@@ -55,11 +73,23 @@ def raw_steps_per_second() -> float:
     return steps_per_second(step, lambda: env.reset())
 
 
-def fast_steps_per_second() -> float:
-    """Our Meta-World env on its fast path (bitwise the stock episodes), in the same loop as raw."""
-    env = MetaWorldEnv(TASK.split("/")[1])
-    env.reset(0)
-    return steps_per_second(lambda action: env.step(action)[2], lambda: env.reset(1))
+def fast_steps_per_second(seeds: list[int], cache: bool = True, episode_steps: int | None = None) -> float:
+    """Our Meta-World env on its fast path (bitwise the stock episodes), in the same loop as raw,
+    reset on `seeds` in turn; with `episode_steps`, also after that many steps."""
+    env, next_seed, length = MetaWorldEnv(TASK.split("/")[1], cache_resets=cache), itertools.cycle(seeds), 0
+    env.reset(next(next_seed))
+
+    def step(action) -> bool:
+        nonlocal length
+        length += 1
+        return env.step(action)[2] or length == episode_steps
+
+    def reset() -> None:
+        nonlocal length
+        length = 0
+        env.reset(next(next_seed))
+
+    return steps_per_second(step, reset)
 
 
 def steps_per_second(step, reset, steps: int = 5000) -> float:
@@ -99,11 +129,16 @@ def policy_call_ms(calls: int = 100, policy_name: str = POLICY, task: str = TASK
 
 
 def engine_steps_per_second(episodes: int, workers: int, backend: str = "local", policy: str = POLICY,
-                            task: str = TASK) -> tuple[float, float]:
+                            task: str = TASK, seeds: int | None = None,
+                            cache: bool = True) -> tuple[float, float]:
     """Env steps/s through the engine, and the peak resident memory of its worker processes in MB
-    (local workers only: 0 for Ray's or an in-process engine)."""
-    batch = [Episode(Gaussian(0), s) for s in seeds_in("search", episodes)]
-    with Engine(policy, get_task(task), workers=workers, backend=backend) as engine:
+    (local workers only: 0 for Ray's or an in-process engine). Episodes on the first `seeds` search
+    seeds in turn, a new noise source each round (default: each episode its own seed)."""
+    seeds = seeds or episodes
+    batch = [Episode(Gaussian(i // seeds), s) for i, s in enumerate(itertools.islice(
+        itertools.cycle(seeds_in("search", seeds)), episodes))]
+    with Engine(policy, get_task(task) if cache else UncachedTask(task), workers=workers,
+                backend=backend) as engine:
         engine.evaluate(batch[: engine.shard_size * workers])  # warm-up: build envs, load the policy
         start = time.perf_counter()
         results = engine.evaluate(batch)
@@ -129,31 +164,40 @@ def worker_peaks_mb() -> list[float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--seeds", type=int, default=20, help="search seeds the episodes run on in turn")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--no-reset-cache", dest="cache", action="store_false",
+                        help="every reset is Meta-World's (no reset cache)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
     backends = ["local"] + (["ray"] if importlib.util.find_spec("ray") else [])
-    rates = {"raw": raw_steps_per_second(), "fast": fast_steps_per_second()}
+    seeds = seeds_in("search", args.seeds)
+    rates = {"raw": raw_steps_per_second(), "fast": fast_steps_per_second(seeds, args.cache),
+             "fast_150": fast_steps_per_second(seeds, args.cache, MAX_STEPS)}
     rates["policy_call_ms"] = policy_call_ms()
     for backend in backends:
-        measured = {w: engine_steps_per_second(args.episodes, w, backend) for w in range(1, args.workers + 1)}
+        measured = {w: engine_steps_per_second(args.episodes, w, backend, seeds=args.seeds, cache=args.cache)
+                    for w in range(1, args.workers + 1)}
         rates["engine" if backend == "local" else backend] = {w: rate for w, (rate, _) in measured.items()}
         if backend == "local":
             rates["peak_rss_mb"] = max(peak for _, peak in measured.values())
+    rates |= {"reset_cache": args.cache, "seeds": args.seeds}
     results = Path(__file__).parent / "results"
     (results / "engine_throughput.json").write_text(json.dumps(rates, indent=2) + "\n")
     plot(rates, results / "engine_throughput.png")
     if args.json:
         print(json.dumps(rates))
         return
-    print(f"raw stock env, 1 process:             {rates['raw']:8.0f} steps/s  (ratio 1.00)")
-    print(f"fast path env, 1 process:             {rates['fast']:8.0f} steps/s  "
-          f"(ratio {rates['fast'] / rates['raw']:.2f})")
+    cache = "on" if args.cache else "off"
+    print(f"reset cache {cache}; engine: {args.episodes} episodes on {args.seeds} seeds")
+    for key, label in RATE_LABELS.items():
+        print(f"{label:37s} {rates[key]:8.0f} steps/s  (ratio {rates[key] / rates['raw']:.2f})")
     for backend in backends:
         for workers, rate in rates["engine" if backend == "local" else backend].items():
-            print(f"{backend:5s} engine, {workers} worker(s), {args.episodes} episodes: {rate:8.0f} steps/s  "
+            print(f"{backend:5s} engine, {workers} worker(s): {rate:8.0f} steps/s  "
                   f"(ratio {rate / rates['raw']:.2f}, per worker {rate / (workers * rates['raw']):.2f}; "
-                  f"per worker to fast {rate / (workers * rates['fast']):.2f})")
+                  f"per worker to fast {rate / (workers * rates['fast']):.2f}, "
+                  f"to fast with 150-step episodes {rate / (workers * rates['fast_150']):.2f})")
     print(f"peak memory of a local worker process: {rates['peak_rss_mb']:.0f} MB")
     served = 16 * load_policy(POLICY).n_exec
     print(f"one policy call on 16 rows: {rates['policy_call_ms']['total']:.2f} ms; the {served} env steps it "
