@@ -196,12 +196,19 @@ def _keep(key: tuple[str, int], reset: _Reset) -> None:
 def _data_views(attributes: dict) -> dict[str, str]:
     """The env's arrays that view its MjData's (pick-place's initial pad positions, a few tasks' goals:
     they follow the simulation), each with the MjData array it views."""
+    views = [key for key, value in attributes.items() if _over_foreign_memory(value)]
     data = attributes["data"]
-    fields = {name: field for name in dir(data)
+    fields = {name: field for name in (dir(data) if views else ())
               if not name.startswith("_") and isinstance(field := getattr(data, name), np.ndarray)}
-    return {key: name for key, value in attributes.items()
-            if isinstance(value, np.ndarray) and not value.flags.owndata
-            for name, field in fields.items() if 0 <= _offset(value, field) < field.nbytes}
+    return {key: name for key in views for name, field in fields.items()
+            if np.may_share_memory(attributes[key], field)}
+
+
+def _over_foreign_memory(value) -> bool:
+    """Whether `value` is an array over memory that no array owns (MuJoCo's, for one)."""
+    while isinstance(value, np.ndarray) and isinstance(value.base, np.ndarray):
+        value = value.base
+    return isinstance(value, np.ndarray) and value.base is not None
 
 
 def _with_data_copy(attributes: dict, views: dict[str, str]) -> dict:
