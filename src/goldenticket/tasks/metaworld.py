@@ -44,9 +44,9 @@ STATE_DIM = 39  # Meta-World's goal-observable state vector
 # positions), found by comparing every array of every task's model before and after resets.
 SHARED_MODEL_WRITES = ("body_pos", "site_pos")
 
-# A kept reset takes ~0.55 MB of memory, nearly all of it its MjData copy (175 KB of arrays, the
-# rest what MuJoCo's bindings hold per MjData): 128 add ~70 MB to a worker, and hold a search's
-# seeds and a 100-seed validation set of one task.
+# A kept reset takes ~0.6 MB of memory, nearly all of it its MjData copy (175 KB of arrays, the
+# rest what MuJoCo's bindings hold per MjData): 128 of them took a worker's peak from 368 to
+# 453 MB, and hold a search's seeds and a 100-seed validation set of one task.
 RESET_CACHE_SIZE = 128
 
 
@@ -62,8 +62,8 @@ class MetaWorldEnv:
     of meshes and textures each otherwise): each env has its own MjData, its own attributes
     (swapped in as the shared env's `__dict__`) and its own copy of the model arrays Meta-World
     writes. The first reset of a seed in a process is Meta-World's (~20 ms of MuJoCo steps moving
-    the arm into place); what it produced is kept (`_Reset`, the last RESET_CACHE_SIZE of all
-    tasks) and the seed's later resets in any env of the task restore it (~1 ms), unless
+    the arm into place); what it produced is kept (`_Reset`, the RESET_CACHE_SIZE most recently
+    used of all tasks) and the seed's later resets in any env of the task restore it (~1 ms), unless
     `cache_resets=False`. `fast=False` is a plain Meta-World env, for comparison: no cache.
     """
 
