@@ -58,7 +58,8 @@ class Evaluator:
 
     def run(self, jobs: Sequence[Job], task: str | None = None) -> list[list[EpisodeResult]]:
         """Results per job, in seed order, on `task` (default: the engine's first); new episodes of
-        all jobs run in one engine call."""
+        all jobs run in one engine call, ordered by seed (each episode's result depends only on its
+        noise source and seed, and a seed's later resets restore its first: tasks/metaworld.py)."""
         task = task or self.engine.task.name
         known = {}
         if self.store is not None:
@@ -68,6 +69,7 @@ class Evaluator:
                                                            row.wall_time, cause=row.cause)
         todo = [(label, Episode(source, seed)) for label, source, seeds in jobs for seed in seeds
                 if (label, seed) not in known]
+        todo.sort(key=lambda item: item[1].seed)  # a seed's arms side by side: its reset is kept, not redone
         heldout: dict[str, list[int]] = {}
         for label, _, seeds in jobs:
             heldout.setdefault(label, []).extend(s for s in seeds if s in SEED_SETS["heldout"])
