@@ -13,7 +13,7 @@ import torch
 from torch.nn import functional
 from tqdm import tqdm
 
-from goldenticket.config import TrainConfig
+from goldenticket.config import EngineOptions, TrainConfig
 from goldenticket.errors import OptionError, UserError
 from goldenticket.files import new_folder_beside, write_atomic
 from goldenticket.policies import mlp
@@ -277,7 +277,6 @@ def _into_new_folder(out: Path, fill: Callable[[Path], dict], cfg: PolicyConfig)
 
 def measure(policy_dir: Path, task: MetaWorldTask, heldout: int, workers: int = 1) -> dict:
     """Base and zero-ticket success of a saved policy on the first `heldout` held-out seeds."""
-    from goldenticket.config import EngineOptions
     from goldenticket.evaluation import Evaluator, judge
     from goldenticket.noise import Constant
 
