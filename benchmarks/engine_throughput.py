@@ -44,7 +44,6 @@ from goldenticket.tasks.base import stack
 from goldenticket.tasks.metaworld import MetaWorldEnv, MetaWorldTask
 
 POLICY, TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
-MAX_STEPS = 150  # the engine's episode limit (MetaWorldTask.max_steps)
 RATE_LABELS = {"raw": "raw stock env, 1 process:", "fast": "fast path env, 1 process:",
                "fast_150": "fast, 150-step episodes, 1 process:"}
 
@@ -173,7 +172,7 @@ def main() -> None:
     backends = ["local"] + (["ray"] if importlib.util.find_spec("ray") else [])
     seeds = seeds_in("search", args.seeds)
     rates = {"raw": raw_steps_per_second(), "fast": fast_steps_per_second(seeds, args.cache),
-             "fast_150": fast_steps_per_second(seeds, args.cache, MAX_STEPS)}
+             "fast_150": fast_steps_per_second(seeds, args.cache, get_task(TASK).max_steps)}
     rates["policy_call_ms"] = policy_call_ms()
     for backend in backends:
         measured = {w: engine_steps_per_second(args.episodes, w, backend, seeds=args.seeds, cache=args.cache)
