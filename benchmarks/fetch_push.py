@@ -32,11 +32,13 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=Path("runs/fetch-push"))
     parser.add_argument("--budget", type=int, default=8000)
     parser.add_argument("--search-seeds", type=int, default=100)
+    parser.add_argument("--validation-seeds", type=int, default=100)
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     start = time.perf_counter()
     summary = goldenticket.search(fetch_push.make_policy(), fetch_push.make_env, args.runs,
-                                  budget=args.budget, search_seeds=args.search_seeds, workers=args.workers)
+                                  budget=args.budget, search_seeds=args.search_seeds,
+                                  validation_seeds=args.validation_seeds, workers=args.workers)
     searched = time.perf_counter()
     fresh = goldenticket.evaluate(fetch_push.make_policy(), fetch_push.make_env, [summary.best.path], FRESH,
                                   workers=args.workers)

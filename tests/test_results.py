@@ -57,3 +57,18 @@ def test_the_job_returns_its_summary_typed_and_writes_it_as_summary_json(tmp_pat
     assert set(summary.front.tickets) <= {p.stem for p in (tmp_path / "tickets").iterdir()}
     assert summary.base.rate.n == summary.zero.rate.n == 20
     assert summary.run.policy == "byo_example:make_policy"
+
+
+def test_without_a_golden_ticket_the_verdict_says_what_to_run_instead():
+    from goldenticket.evaluation import VerdictRow
+    from goldenticket.report import verdict_text
+    from goldenticket.stats import Rate
+
+    def row(k, p=None):
+        return VerdictRow(Rate.counted(k, 100), p_vs_base=p)
+
+    weak = row(52, 0.4)
+    for zero, said in ((row(80, 1e-6), "The zero ticket (w = 0) is: 80.0%, p = 1e-06; deploy it"),
+                       (row(49, 0.7), "Keep the base policy (fresh Gaussian noise)")):
+        text = verdict_text({"base": row(50), "zero ticket": zero, "ticket t": weak}, weak, "t", "")
+        assert "No golden ticket: the best ticket (t, 52.0%)" in text and said in text

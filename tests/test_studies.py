@@ -130,9 +130,9 @@ def test_validation_seeds_choose_among_the_searchs_best_on_states_of_their_own(t
     assert best["validation_score"] == float(np.mean(by_ticket[best["ticket_id"]]))
 
 
-def test_one_task_validates_on_100_seeds_unless_told_and_several_tasks_do_not():
+def test_one_task_validates_on_40_seeds_unless_told_and_several_tasks_do_not():
     from goldenticket.config import SearchConfig
 
-    assert SearchConfig(POLICY, TASK).validation() == 100
+    assert SearchConfig(POLICY, TASK).validation() == 40
     assert SearchConfig(POLICY, TASK, validation_seeds=0).validation() == 0
     assert SearchConfig(POLICY, (TASK, "metaworld/push-v3")).validation() == 0

@@ -75,11 +75,13 @@ class SearchConfig(EngineOptions):
     method: str = option("cma-es", "random search, CEM, zeroth-order search, CEM raced by halving "
                          "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES",
                          choices=tuple(OPTIMIZERS))
-    budget: int = option(2000, "search episodes to spend (per task for transfer)")
+    budget: int = option(850, "search episodes to spend (per task for transfer); with the default "
+                         "validation, 1250 episodes before the verdict")
     seed: int = option(0, "seed of every random draw")
     search_seeds: int = option(20, "initial states to search on (per task)")
     heldout: int = option(200, "held-out initial states (per task) to judge base, zero ticket and tickets on")
-    top_k: int = option(3, "best search tickets judged on held-out states")
+    top_k: int = option(3, "best search tickets judged on held-out states (after validation, the zero "
+                        "ticket beside them)")
     objective: str = option("success", "episode return the search maximises; speed: short successful "
                             "episodes; success-progress: success, ties broken by how far failed episodes "
                             "got (Meta-World's shaped reward at their end)", choices=tuple(OBJECTIVES))
@@ -95,7 +97,7 @@ class SearchConfig(EngineOptions):
                                          "the two (front.json, front.png)", choices=tuple(OBJECTIVES))
     validation_seeds: int | None = option(None, "run the 3 x top_k best search tickets on this many "
                                           "validation states, with the zero ticket and any ticket given, "
-                                          "and judge the top_k of those on held-out states (default: 100 "
+                                          "and judge the top_k of those on held-out states (default: 40 "
                                           "for one task, 0 for several; 0: judge the search's top_k)")
     no_regression: bool = option(False, "several tasks: never pick a ticket significantly worse than the "
                                  "base on a task", action="store_true")
@@ -166,7 +168,7 @@ class SearchConfig(EngineOptions):
     def validation(self) -> int:
         """Validation seeds this run uses."""
         if self.validation_seeds is None:
-            return 0 if len(self.tasks) > 1 else 100
+            return 0 if len(self.tasks) > 1 else 40
         return self.validation_seeds
 
     def optimizer(self, noise_shape: tuple[int, int], search_seeds: list[int]):

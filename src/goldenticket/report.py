@@ -44,13 +44,23 @@ def verdict_text(rows: dict[str, VerdictRow], best: VerdictRow, name: str, note:
                 f"{best.rate.n} held-out seeds (p = {best.p_vs_base:.3g})")
     else:
         line = (f"No golden ticket: the best ticket ({name}, {best.rate.success_rate:.1%}) is not "
-                f"significantly better than the base ({base:.1%}); p = {best.p_vs_base:.3g} >= 0.05")
+                f"significantly better than the base ({base:.1%}); p = {best.p_vs_base:.3g} >= 0.05. "
+                + instead(rows))
     if any(r.nonfinite for r in rows.values()):
         note += (" non-finite: episodes the policy ended with a NaN or infinite action, counted as "
                  "failures.")
     table = verdict_table({label: r.to_dict() for label, r in rows.items()})
     return f"{table}\n\n{line}\n{note}"
 
+
+
+def instead(rows: dict[str, VerdictRow]) -> str:
+    """What to run when no judged ticket is golden: the zero ticket where it is, else the base."""
+    zero = rows["zero ticket"]
+    if zero.golden:
+        return (f"The zero ticket (w = 0) is: {zero.rate.success_rate:.1%}, p = {zero.p_vs_base:.3g}; "
+                "deploy it (a ticket of zeros) rather than these tickets.")
+    return "Keep the base policy (fresh Gaussian noise) rather than these tickets."
 
 def _columns(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]

@@ -77,7 +77,8 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> Summary | MultitaskSumm
             bar.total = result.episodes_used
         top = _top(result, cfg, len(keys))
         candidates = [_ticket(cfg, names, result, c, search_seeds, expand, task_names) for c in top]
-        tickets = _select(cfg, evaluator, candidates + (others if validation else []), validation, task_names)
+        chosen = _select(cfg, evaluator, candidates + (others if validation else []), validation, task_names)
+        tickets = _with_zero(chosen, others[0]) if validation else chosen
         tracker.validated(candidates + others)
         sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
         with evaluator.progress(cfg.heldout * (len(tickets) + 2) * len(tasks), "held-out: top tickets"):
@@ -163,6 +164,13 @@ def _select(cfg: SearchConfig, evaluator: Evaluator, tickets: list[Ticket], seed
         ticket.metadata |= {"validation_score": score, "validation_seeds": [seeds[0], seeds[-1]]}
     ranked = sorted(range(len(tickets)), key=lambda i: -scores[i])  # stable: ties keep search rank
     return [tickets[i] for i in ranked[: cfg.top_k]]
+
+
+def _with_zero(tickets: list[Ticket], zero: Ticket) -> list[Ticket]:
+    """The tickets the verdict judges after validation: `tickets`, and the zero ticket after them if
+    it is not among them. It is a constant noise like any ticket, so the job delivers it wherever it
+    is best on the held-out seeds."""
+    return tickets if any(t.id == zero.id for t in tickets) else [*tickets, zero]
 
 
 def _front(cfg: SearchConfig, names: Names, evaluator: Evaluator, result: SearchResult, seeds: tuple,
@@ -256,8 +264,8 @@ def query_evaluator(evaluator: Evaluator, fingerprint: str, expand: Callable = l
 
 def _other_candidates(cfg: SearchConfig, names: Names, shape: tuple[int, int],
                       tasks: list[str]) -> list[Ticket]:
-    """Tickets that enter validation beside the search's best: the zero ticket and the tickets
-    `cfg.tickets` names (files or bundled ids; any policy's or task's, if the shape fits)."""
+    """Tickets that enter validation beside the search's best: the zero ticket (first) and the
+    tickets `cfg.tickets` names (files or bundled ids; any policy's or task's, if the shape fits)."""
     sources = {"zero ticket": zero_ticket(shape).noise} | {
         f"given: {ref}": Ticket.load(find_ticket(ref), expected_shape=shape).noise for ref in cfg.tickets}
     tickets = [Ticket(noise, _provenance(names, shape, tasks, {"source": source, "search_score": None}))
