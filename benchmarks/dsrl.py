@@ -1,29 +1,42 @@
-"""DSRL-SAC against CEM and random search: held-out success against wall time and env steps.
+"""DSRL-SAC against CEM, RS and CMA-ES: held-out success against wall time and env steps.
 
-    pip install stable-baselines3 && python benchmarks/dsrl.py [--minutes 6]
+    pip install -e ".[dsrl]" && python benchmarks/dsrl.py [--minutes 60] [--pairs TASK ...]
 
 DSRL (diffusion steering by RL) trains SAC whose action is the frozen policy's initial noise,
 chosen per observation; goldenticket searches one constant noise. Both get the same bundled
-policies, tasks, search seeds (SAC's training episodes cycle through them) and the same 100
+policies, tasks, search seeds (SAC's training episodes cycle through them) and the same HELDOUT
 held-out seeds, and use both cores: SAC on 2 torch threads, the searches on 2 workers.
 
 - DSRL-SAC (stable-baselines3, the DSRL authors' settings): actor and critic lr 3e-4, batch
   256, tau 0.005, gamma 0.99, 20 gradient steps per environment step (UTD 20), actions in
   [-1, 1] scaled to noise in [-1.5, 1.5]; one SAC step is one policy call (a chunk of actions),
   reward 1 on success. Trained for `--minutes` of wall time per pair; every CHECKPOINT steps the
-  deterministic actor is judged on the held-out seeds (judging time not counted).
-- CEM and RS (goldenticket, paper defaults) at budgets BUDGETS, each search timed from scratch;
-  its top ticket judged on the same held-out seeds.
+  deterministic actor is judged on the held-out seeds (judging and saving time not counted).
+- CEM, RS and CMA-ES, the default search (goldenticket, paper defaults), at budgets BUDGETS,
+  each search timed from scratch; its top ticket judged on the same held-out seeds.
 
-Writes benchmarks/results/dsrl.{md,json,png}. SAC trains in float32 torch: its numbers repeat on
-the same kind of CPU only (the searches' on any).
+Resumable: each pair's folder `--runs`/<task> keeps SAC's model and replay buffer, the env's
+counters and the curve so far (rewritten after every checkpoint), the base's success and every
+search point. A rerun continues until SAC has trained `--minutes` in total, or only reports if
+it has. A resumed run is not bit-identical to an uninterrupted one (SB3 reseeds its random
+generators on load and the episode in progress starts over), but its curve continues.
+
+The report says whether DSRL's curve has plateaued (`plateaued`) and, against CEM and CMA-ES,
+how long each side takes to first reach the other's best held-out success, with an interval
+from 95% Wilson bounds (`race`).
+
+Writes benchmarks/results/dsrl.{md,json,png} (`--no-write`: only prints the table). SAC trains
+in float32 torch: its numbers repeat on the same kind of CPU only (the searches' on any).
 """
 
 from __future__ import annotations
 
 import argparse
+import io
+import json
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import gymnasium as gym
@@ -31,23 +44,29 @@ import numpy as np
 import torch
 from results_files import write_results
 
-from goldenticket.config import EngineOptions
+from goldenticket.config import EngineOptions, SearchConfig
+from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator
+from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Episode, rollout
+from goldenticket.stats import wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
 from goldenticket.ticket_search import make_optimizer, run_search
 from goldenticket.workflow import query_evaluator
 
 PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies with the lowest base
+DEFAULT_SEARCH = SearchConfig("", "").method
+SEARCHES, RACED = ("cem", "rs", DEFAULT_SEARCH), ("cem", DEFAULT_SEARCH)
+RUNS = Path(__file__).parent / "runs" / "dsrl"
 NOISE_MAGNITUDE = 1.5
 SAC = dict(learning_rate=3e-4, batch_size=256, tau=0.005, gamma=0.99, train_freq=1, gradient_steps=20,
            learning_starts=100)
 CHECKPOINT = 400  # SAC steps between held-out judgements
-BUDGETS = (100, 300, 1000)
-SEARCH_SEEDS, HELDOUT = 20, 100
+BUDGETS = (100, 300, 1000, 3000, 10000)
+SEARCH_SEEDS, HELDOUT = 20, 200
 
 
 class NoiseSpaceEnv(gym.Env):
@@ -96,73 +115,184 @@ def heldout_success(policy, task) -> float:
     return float(np.mean([r.success for r in results]))
 
 
-def dsrl_curve(task_name: str, minutes: float, seed: int = 0) -> list[dict]:
-    """SAC trained for `minutes` of wall time: (seconds, SAC steps, env steps, held-out success)."""
+def settings() -> dict:
+    """What a pair's folder is computed with (as JSON reads it back)."""
+    return json.loads(json.dumps({"sac": SAC, "noise_magnitude": NOISE_MAGNITUDE, "checkpoint": CHECKPOINT,
+                                  "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT}))
+
+
+def check_settings(folder: Path) -> None:
+    """Record the settings in `folder`, or raise UserError if it holds a run made with others."""
+    path = folder / "settings.json"
+    if path.exists() and json.loads(path.read_text()) != settings():
+        raise UserError(f"{folder} holds a run made with other settings; name another --runs folder or "
+                        "remove it")
+    write_atomic(path, json.dumps(settings(), indent=2) + "\n")
+
+
+def cached(path: Path, compute: Callable):
+    """`compute()`, or what it returned when first run, kept as JSON at `path`."""
+    if path.exists():
+        return json.loads(path.read_text())
+    value = compute()
+    write_atomic(path, json.dumps(value, indent=2) + "\n")
+    return value
+
+
+def save_checkpoint(folder: Path, model, curve: list[dict]) -> None:
+    """SAC's model and replay buffer under names of their step count, then dsrl.json naming them
+    with the curve so far (the checkpoint's commit), then the older files removed."""
+    steps = curve[-1]["sac_steps"]
+    files = {"model": f"sac-{steps}.zip", "replay_buffer": f"replay-{steps}.pkl"}
+    for save, name in ((model.save, files["model"]), (model.save_replay_buffer, files["replay_buffer"])):
+        data = io.BytesIO()
+        save(data)
+        write_atomic(folder / name, data.getvalue())
+    write_atomic(folder / "dsrl.json", json.dumps(files | {"curve": curve}, indent=2) + "\n")
+    kept = {folder / name for name in files.values()}
+    for stale in {*folder.glob("sac-*.zip"), *folder.glob("replay-*.pkl")} - kept:
+        stale.unlink()
+
+
+def dsrl_curve(task_name: str, minutes: float, folder: Path) -> list[dict]:
+    """SAC trained until `minutes` of wall time in total, resumed from `folder`'s last checkpoint
+    (if any) and checkpointed there: (seconds, SAC steps, episodes, env steps, held-out success)."""
     from stable_baselines3 import SAC as SACAlgorithm
 
-    torch.set_num_threads(2)
     policy, task = load_policy(f"metaworld/{task_name}/flow"), get_task(f"metaworld/{task_name}")
-    env = NoiseSpaceEnv(policy, task, seeds_in("search", SEARCH_SEEDS))
-    model = SACAlgorithm("MlpPolicy", env, seed=seed, device="cpu", **SAC)
-    curve, trained = [], 0.0
+    env, saved = NoiseSpaceEnv(policy, task, seeds_in("search", SEARCH_SEEDS)), folder / "dsrl.json"
+    if saved.exists():
+        state = json.loads(saved.read_text())
+        model = SACAlgorithm.load(folder / state["model"], env=env, device="cpu")
+        model.load_replay_buffer(folder / state["replay_buffer"])
+        curve = state["curve"]
+        env.episodes, env.env_steps = curve[-1]["episodes"], curve[-1]["env_steps"]
+    else:
+        model, curve = SACAlgorithm("MlpPolicy", env, seed=0, device="cpu", **SAC), []
+    trained = curve[-1]["seconds"] if curve else 0.0
     while trained < 60 * minutes:
         start = time.perf_counter()
         model.learn(CHECKPOINT, reset_num_timesteps=False)
         trained += time.perf_counter() - start
-        curve.append({"seconds": trained, "sac_steps": int(model.num_timesteps), "env_steps": env.env_steps,
+        curve.append({"seconds": trained, "sac_steps": int(model.num_timesteps), "episodes": env.episodes,
+                      "env_steps": env.env_steps,
                       "success": heldout_success(ActorNoise(policy, model), task)})
+        save_checkpoint(folder, model, curve)
         print(f"dsrl {task_name}: {curve[-1]}", flush=True)
     return curve
 
 
-def search_curve(task_name: str, method: str, workers: int) -> list[dict]:
-    """Each budget's search timed from scratch; its top ticket judged on the held-out seeds."""
+def search_point(task_name: str, method: str, budget: int, workers: int) -> dict:
+    """One search of `budget` episodes timed from scratch; its top ticket judged on the held-out seeds."""
     policy_name = f"metaworld/{task_name}/flow"
     policy, task = load_policy(policy_name), get_task(f"metaworld/{task_name}")
-    curve = []
-    for budget in BUDGETS:
-        with tempfile.TemporaryDirectory() as tmp, RunStore(Path(tmp) / "run.sqlite") as store, \
-                Evaluator.open(policy_name, task, EngineOptions(workers=workers), store,
-                               loaded=policy) as evaluator:
-            start = time.perf_counter()
-            optimizer = make_optimizer(method, policy.noise_shape, seeds_in("search", SEARCH_SEEDS),
-                                       np.random.default_rng(0))
-            result = run_search(optimizer, query_evaluator(evaluator, policy.fingerprint()), budget=budget)
-            seconds = time.perf_counter() - start
-            env_steps = sum(row.length for row in store.episodes())
-            top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]
-            judged = evaluator.run([("top", Constant(top.ticket), seeds_in("heldout", HELDOUT))])[0]
-        curve.append({"budget": budget, "seconds": seconds, "env_steps": env_steps,
-                      "success": float(np.mean([r.success for r in judged]))})
-        print(f"{method} {task_name}: {curve[-1]}", flush=True)
-    return curve
+    with tempfile.TemporaryDirectory() as tmp, RunStore(Path(tmp) / "run.sqlite") as store, \
+            Evaluator.open(policy_name, task, EngineOptions(workers=workers), store,
+                           loaded=policy) as evaluator:
+        start = time.perf_counter()
+        optimizer = make_optimizer(method, policy.noise_shape, seeds_in("search", SEARCH_SEEDS),
+                                   np.random.default_rng(0))
+        result = run_search(optimizer, query_evaluator(evaluator, policy.fingerprint()), budget=budget)
+        seconds = time.perf_counter() - start
+        env_steps = sum(row.length for row in store.episodes())
+        top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]
+        judged = evaluator.run([("top", Constant(top.ticket), seeds_in("heldout", HELDOUT))])[0]
+    point = {"budget": budget, "seconds": seconds, "env_steps": env_steps,
+             "success": float(np.mean([r.success for r in judged]))}
+    print(f"{method} {task_name}: {point}", flush=True)
+    return point
 
 
-def speedup(search: list[dict], dsrl: list[dict]) -> float | None:
-    """DSRL's wall time to its best held-out success over the search's time to first match it."""
-    best = max(dsrl, key=lambda p: p["success"])
-    reached = [p for p in search if p["success"] >= best["success"]]
-    return best["seconds"] / reached[0]["seconds"] if reached else None
+def search_curve(task_name: str, method: str, workers: int, folder: Path) -> list[dict]:
+    """The search at every budget, each point kept in `folder` once judged."""
+    return [cached(folder / f"{method}-{budget}.json", lambda budget=budget: search_point(task_name, method,
+                                                                                           budget, workers))
+            for budget in BUDGETS]
 
 
-def markdown(results: dict, wall: float, minutes: float) -> str:
-    lines = [f"Regenerate: `python benchmarks/dsrl.py --minutes {minutes:g}` ({wall / 60:.0f} min here).", "",
-             "| task (flow policy) | base | DSRL-SAC best (at s, env steps) | CEM: budget, s, env steps, "
-             "success | RS: budget, s, env steps, success | CEM speed-up to DSRL's best |",
-             "|---|---|---|---|---|---|"]
+def plateaued(curve: list[dict], n: int) -> bool:
+    """Whether the curve has plateaued: it has 3 checkpoints or more and its best held-out success
+    (of `n` seeds) before the last third of them is inside the 95% Wilson interval of its overall
+    best, so the last third of training gained nothing beyond sampling noise."""
+    best = max(p["success"] for p in curve)
+    earlier = curve[:len(curve) * 2 // 3]
+    return len(curve) >= 3 and max(p["success"] for p in earlier) >= wilson_interval(round(best * n), n)[0]
+
+
+def reach_times(curve: list[dict], target: float, n: int) -> list[float | None]:
+    """Seconds until `curve` first reaches held-out success `target` (of `n` seeds) by its 95% Wilson
+    upper bound (optimistic), its estimate and its lower bound (pessimistic); None where never."""
+    def bounds(p):
+        low, high = wilson_interval(round(p["success"] * n), n)
+        return high, p["success"], low
+    return [next((p["seconds"] for p in curve if bounds(p)[i] >= target), None) for i in range(3)]
+
+
+def ratio(a: float | None, b: float | None) -> float | None:
+    return None if a is None or b is None else a / b
+
+
+def race(dsrl: list[dict], search: list[dict], n: int) -> list[dict]:
+    """For DSRL's best held-out success, then the search's: each side's seconds to first reach it
+    (the owner's: its best checkpoint's; the other's: `reach_times`) and the speed-up, DSRL seconds
+    over search seconds, as (low, estimate, high); None where a bound is never reached."""
+    rows = []
+    for owner in (dsrl, search):
+        best = max(owner, key=lambda p: p["success"])
+        d, s = ([best["seconds"]] * 3 if curve is owner else reach_times(curve, best["success"], n)
+                for curve in (dsrl, search))
+        rows.append({"target": best["success"], "dsrl_seconds": d, "search_seconds": s,
+                     "speedup": [ratio(d[0], s[2]), ratio(d[1], s[1]), ratio(d[2], s[0])]})
+    return rows
+
+
+def run_pair(task_name: str, minutes: float, folder: Path, workers: int) -> dict:
+    """One pair's base, DSRL and search curves (resumed from and kept in `folder`) and verdicts."""
+    check_settings(folder)
+    base = cached(folder / "base.json", lambda: heldout_success(load_policy(f"metaworld/{task_name}/flow"),
+                                                                get_task(f"metaworld/{task_name}")))
+    result = {"base": base, "dsrl": dsrl_curve(task_name, minutes, folder)}
+    result |= {method: search_curve(task_name, method, workers, folder) for method in SEARCHES}
+    return result | {"plateaued": plateaued(result["dsrl"], HELDOUT),
+                     "race": {method: race(result["dsrl"], result[method], HELDOUT) for method in RACED}}
+
+
+def span(values: list[float | None], form: str) -> str:
+    """(low, estimate, high) as 'estimate (low to high)', one value if all equal; None: 'not reached'."""
+    low, estimate, high = ("not reached" if v is None else form.format(v) for v in values)
+    return estimate if low == estimate == high else f"{estimate} ({low} to {high})"
+
+
+def markdown(results: dict, minutes: float) -> str:
+    def cells(curve):
+        return "<br>".join(f"{p['budget']}: {p['seconds']:.0f} s, {p['env_steps']}, {p['success']:.0%}"
+                           for p in curve)
+
+    lines = [f"Regenerate: `python benchmarks/dsrl.py --minutes {minutes:g} --pairs {' '.join(results)}` "
+             "(resumes from benchmarks/runs/dsrl/).", "",
+             "| task (flow policy) | base | DSRL-SAC best (at s, env steps) | plateaued | "
+             + " | ".join(f"{m.upper()}: budget, s, env steps, success" for m in SEARCHES) + " |",
+             "|---|---|---|---|" + "---|" * len(SEARCHES)]
     for task, r in results.items():
         best = max(r["dsrl"], key=lambda p: p["success"])
-
-        def cells(curve):
-            return "<br>".join(f"{p['budget']}: {p['seconds']:.0f} s, {p['env_steps']}, {p['success']:.0%}"
-                               for p in curve)
-        ratio = speedup(r["cem"], r["dsrl"])
         lines.append(f"| {task} | {r['base']:.0%} | {best['success']:.0%} ({best['seconds']:.0f} s, "
-                     f"{best['env_steps']}) | {cells(r['cem'])} | {cells(r['rs'])} | "
-                     f"{f'{ratio:.1f}x' if ratio else 'not reached'} |")
+                     f"{best['env_steps']}) | {'yes' if r['plateaued'] else 'no'} | "
+                     + " | ".join(cells(r[m]) for m in SEARCHES) + " |")
+    lines += ["", "| task | search | target: best held-out success of | DSRL-SAC, s | search, s | "
+              "speed-up (DSRL s / search s) |", "|---|---|---|---|---|---|"]
+    for task, r in results.items():
+        for method, rows in r["race"].items():
+            for owner, row in zip(("DSRL-SAC", method.upper()), rows, strict=True):
+                seconds = (span(row[side], "{:.0f} s") for side in ("dsrl_seconds", "search_seconds"))
+                lines.append(f"| {task} | {method.upper()} | {owner}, {row['target']:.0%} | "
+                             + " | ".join(seconds) + f" | {span(row['speedup'], '{:.2g}x')} |")
     lines += ["", f"Held-out success on {HELDOUT} held-out seeds; DSRL trained {minutes:g} min per pair, "
-              f"judged every {CHECKPOINT} SAC steps. Speed-up: DSRL's training time to its best success "
-              "divided by the time of CEM's first budget that matches it."]
+              f"judged every {CHECKPOINT} SAC steps; each search timed from scratch at each budget. "
+              "Plateaued: with 3 checkpoints or more, the best success before the last third of them is "
+              "inside the 95% Wilson interval of the overall best (the last third gained nothing beyond "
+              "sampling noise). Seconds to a target: the owner's are those of its best checkpoint or budget; "
+              "the other side's are its first to reach the target, by the estimate (from the 95% Wilson "
+              "upper bound, optimistic, to the lower bound, pessimistic)."]
     return "\n".join(lines) + "\n"
 
 
@@ -171,7 +301,7 @@ def plot(results: dict, path: Path) -> None:
 
     fig = Figure(figsize=(5 * len(results), 4))
     for ax, (task, r) in zip(np.atleast_1d(fig.subplots(1, len(results))), results.items(), strict=True):
-        for name, style in (("dsrl", "-o"), ("cem", "-s"), ("rs", "--^")):
+        for name, style in zip(("dsrl", *SEARCHES), ("-o", "-s", "--^", "-d"), strict=True):
             ax.plot([p["seconds"] for p in r[name]], [p["success"] for p in r[name]], style,
                     label="DSRL-SAC" if name == "dsrl" else name.upper())
         ax.axhline(r["base"], color="0.45", linestyle="--", label="base")
@@ -184,19 +314,27 @@ def plot(results: dict, path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--minutes", type=float, default=6.0, help="SAC training time per pair")
+    parser.add_argument("--minutes", type=float, default=60.0,
+                        help="SAC training time per pair, in total over resumed runs")
+    parser.add_argument("--pairs", nargs="+", choices=PAIRS, default=PAIRS[:2], metavar="TASK",
+                        help=f"tasks to run, of: {', '.join(PAIRS)} (default: the first two)")
+    parser.add_argument("--runs", type=Path, default=RUNS, help="folder of the pairs' resumable runs")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--no-write", action="store_true", help="print the table, write no results files")
     args = parser.parse_args()
-    start, results = time.perf_counter(), {}
-    for task in PAIRS:
-        base = heldout_success(load_policy(f"metaworld/{task}/flow"), get_task(f"metaworld/{task}"))
-        results[task] = {"base": base, "dsrl": dsrl_curve(task, args.minutes)}
-        results[task] |= {method: search_curve(task, method, args.workers) for method in ("cem", "rs")}
-    wall = time.perf_counter() - start
-    settings = {"sac": SAC, "noise_magnitude": NOISE_MAGNITUDE, "checkpoint": CHECKPOINT, "budgets": BUDGETS,
-                "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT, "minutes": args.minutes}
-    write_results("dsrl", {"settings": settings, "results": results, "wall_seconds": wall},
-                  markdown(results, wall, args.minutes), lambda path: plot(results, path))
+    if args.minutes <= 0:
+        parser.error("--minutes must be > 0")
+    torch.set_num_threads(2)
+    try:
+        results = {task: run_pair(task, args.minutes, args.runs / task, args.workers) for task in args.pairs}
+    except UserError as exc:
+        parser.error(str(exc))
+    text = markdown(results, args.minutes)
+    if args.no_write:
+        print(text)
+        return
+    record = {"settings": settings() | {"budgets": BUDGETS, "minutes": args.minutes}, "results": results}
+    write_results("dsrl", record, text, lambda path: plot(results, path))
 
 
 if __name__ == "__main__":

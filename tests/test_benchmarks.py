@@ -1,7 +1,14 @@
+import json
+import sys
+
+import dsrl
 import existence
 import numpy as np
 import pytest
 import search_methods
+import torch
+
+from goldenticket.errors import UserError
 
 
 def _rate(p, n=200):
@@ -65,9 +72,21 @@ def test_search_method_winner_per_budget():
     assert search_methods.shrinkage(results) == pytest.approx(1 - np.mean(held))
 
 
+QUICK_SAC = {"learning_starts": 10, "gradient_steps": 1, "batch_size": 16, "buffer_size": 1000,
+             "policy_kwargs": {"net_arch": [16]}}  # DSRL's SAC, small enough for a test
+
+
+@pytest.fixture
+def one_torch_thread():
+    """A tiny net trains faster on one torch thread than on two busy cores."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 @pytest.mark.slow
-def test_dsrl_steers_the_frozen_policy_through_the_noise_space():
-    import dsrl
+def test_dsrl_steers_the_frozen_policy_through_the_noise_space(one_torch_thread):
     from stable_baselines3 import SAC
 
     from goldenticket.policies import load_policy
@@ -78,9 +97,88 @@ def test_dsrl_steers_the_frozen_policy_through_the_noise_space():
     obs, _ = env.reset()
     obs, reward, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape, np.float32))
     assert env.observation_space.contains(obs) and env.env_steps == policy.n_exec and reward in (0.0, 1.0)
-    quick = dsrl.SAC | {"learning_starts": 10, "gradient_steps": 2}
-    model = SAC("MlpPolicy", env, seed=0, device="cpu", **quick)
+    model = SAC("MlpPolicy", env, seed=0, device="cpu", **dsrl.SAC | QUICK_SAC)
     model.learn(30)
     steered = dsrl.ActorNoise(policy, model)
     actions = steered.act(np.stack([obs, obs]), np.zeros((2, *policy.noise_shape), np.float32))
     assert actions.shape == (2, policy.n_exec, 4) and np.array_equal(actions[0], actions[1])
+
+
+def _curve(*points, budget=False):
+    return [{"seconds": s, "success": p, "env_steps": 10 * s} | ({"budget": 100 * i} if budget else {})
+            for i, (s, p) in enumerate(points, 1)]
+
+
+def test_dsrl_race_times_each_side_to_the_others_best_with_wilson_bounds():
+    dsrl_curve = _curve((100, 0.5), (200, 0.6), (300, 0.7))
+    to_dsrl, to_search = dsrl.race(dsrl_curve, _curve((5, 0.55), (10, 0.62), (20, 0.64)), n=100)
+    # 62% of 100 has an upper bound above 70%, no search point's estimate or lower bound reaches it
+    assert to_dsrl == {"target": 0.7, "dsrl_seconds": [300] * 3, "search_seconds": [10, None, None],
+                       "speedup": [None, None, 30]}
+    # DSRL's 60% reaches 64% by its upper bound, 70% by its estimate, never by its lower bound (60.4%)
+    assert to_search == {"target": 0.64, "dsrl_seconds": [200, 300, None], "search_seconds": [20] * 3,
+                         "speedup": [10, 15, None]}
+    to_dsrl, to_search = dsrl.race(dsrl_curve, _curve((5, 0.55), (10, 0.62), (20, 0.9)), n=100)
+    assert to_dsrl["search_seconds"] == [10, 20, 20] and to_dsrl["speedup"] == [15, 15, 30]
+    assert to_search["dsrl_seconds"] == [None] * 3 and to_search["speedup"] == [None] * 3
+    search = _curve((5, 0.55), (10, 0.62), (20, 0.64), budget=True)
+    pair = {"base": 0.5, "dsrl": dsrl_curve, "plateaued": False} | dict.fromkeys(dsrl.SEARCHES, search)
+    table = dsrl.markdown({"reach-v3": pair | {"race": {m: dsrl.race(dsrl_curve, search, n=100)
+                                                        for m in dsrl.RACED}}}, minutes=60)
+    assert "| 70% (300 s, 3000) | no |" in table
+    assert "| 300 s | not reached (10 s to not reached) | not reached (not reached to 30x) |" in table
+
+
+def test_dsrl_plateau_means_the_last_third_of_checkpoints_gained_nothing_beyond_noise():
+    rising = _curve(*enumerate((0.3, 0.4, 0.5, 0.6, 0.7, 0.8)))
+    assert not dsrl.plateaued(rising, n=100)  # its best is in the last third, far above the earlier best
+    assert dsrl.plateaued(_curve(*enumerate((0.6, 0.65, 0.62, 0.64, 0.61, 0.66))), n=100)
+    assert dsrl.plateaued(_curve(*enumerate((0.5, 0.8, 0.7, 0.6))), n=100)  # declining counts: no gain
+    assert not dsrl.plateaued(_curve((1, 0.5), (2, 0.5)), n=100)  # too few checkpoints to say
+
+
+def test_dsrl_runs_folder_keeps_settings_and_search_points(tmp_path, monkeypatch):
+    calls = []
+    assert dsrl.cached(tmp_path / "p.json", lambda: calls.append(1) or {"success": 0.5}) == {"success": 0.5}
+    assert dsrl.cached(tmp_path / "p.json", lambda: calls.append(1)) == {"success": 0.5} and calls == [1]
+    dsrl.check_settings(tmp_path)
+    dsrl.check_settings(tmp_path)
+    monkeypatch.setattr(dsrl, "HELDOUT", dsrl.HELDOUT + 1)
+    with pytest.raises(UserError, match="other settings"):
+        dsrl.check_settings(tmp_path)
+
+
+@pytest.mark.slow
+def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, monkeypatch, capsys,
+                                                                      one_torch_thread):
+    from stable_baselines3.common.save_util import load_from_pkl
+
+    small = {"SAC": dsrl.SAC | QUICK_SAC, "CHECKPOINT": 20, "HELDOUT": 3, "SEARCH_SEEDS": 3, "BUDGETS": (20,)}
+    for name, value in small.items():
+        monkeypatch.setattr(dsrl, name, value)
+    folder = tmp_path / "reach-v3"
+    first = dsrl.dsrl_curve("reach-v3", 1e-9, folder)
+    judge = dsrl.heldout_success
+
+    def interrupt(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dsrl, "heldout_success", interrupt)
+    with pytest.raises(KeyboardInterrupt):  # stopped while judging its second checkpoint
+        dsrl.dsrl_curve("reach-v3", 1, folder)
+    monkeypatch.setattr(dsrl, "heldout_success", judge)
+    minutes = first[-1]["seconds"] / 60 * 1.001  # one more checkpoint
+    resumed = dsrl.dsrl_curve("reach-v3", minutes, folder)
+    assert resumed[0] == first[0] and resumed[1]["sac_steps"] == 2 * dsrl.CHECKPOINT
+    assert resumed[1]["seconds"] > first[0]["seconds"] and resumed[1]["env_steps"] > first[0]["env_steps"]
+    assert resumed[1]["episodes"] > first[0]["episodes"]
+    assert sorted(p.name for p in folder.glob("*-*.*")) == ["replay-40.pkl", "sac-40.zip"]
+    assert load_from_pkl(folder / "replay-40.pkl").pos == 2 * dsrl.CHECKPOINT  # the buffer carried over
+    monkeypatch.setattr(dsrl, "ActorNoise", interrupt)  # trained long enough: neither trains nor judges
+    monkeypatch.setattr(dsrl, "write_results", interrupt)
+    monkeypatch.setattr(sys, "argv", ["dsrl.py", "--minutes", str(minutes), "--pairs", "reach-v3", "--runs",
+                                      str(tmp_path), "--workers", "1", "--no-write"])
+    dsrl.main()
+    assert json.loads((folder / "dsrl.json").read_text())["curve"] == resumed
+    assert {p.name for p in folder.glob("*-20.json")} == {f"{m}-20.json" for m in dsrl.SEARCHES}
+    assert "| reach-v3 | " in capsys.readouterr().out
