@@ -15,17 +15,17 @@ def _rate(p, n=200):
     return {"success_rate": p, "ci_low": p - 0.05, "ci_high": p + 0.05, "n": n}
 
 
-def _row(base, zero, best, p_base, p_zero):
+def _row(base, zero, best, p_base, p_zero, below_zero=0.5, spent=1200):
     fresh = _rate(best) | {"p_vs_base": p_base, "p_vs_zero": p_zero, "base": _rate(base), "zero": _rate(zero),
-                           "inside_recorded_interval": True}
+                           "inside_recorded_interval": True, "p_below_base": 0.5, "p_below_zero": below_zero}
     return {"task": "t", "policy": "flow", "base": _rate(base), "zero": _rate(zero), "best": _rate(best),
             "p_vs_base": p_base, "p_vs_zero": p_zero, "golden": p_base < 0.05, "fresh": fresh,
-            "search": "cma-es, 2000 episodes"}
+            "fresh_2": fresh, "search": "cma-es, 850 episodes", "search_and_validation": spent}
 
 
 def test_existence_summary_counts_gains_sign_test_and_targets():
     rows = [_row(0.5, 0.6, 0.7, 0.001, 0.04), _row(0.5, 0.5, 0.5, 1.0, 1.0),
-            _row(0.6, 0.7, 0.55, 0.9, 0.99), _row(0.3, 0.3, 0.4, 0.01, 0.2)]
+            _row(0.6, 0.7, 0.55, 0.9, 0.99, below_zero=0.01, spent=1250), _row(0.3, 0.3, 0.4, 0.01, 0.2)]
     s = existence.summary_rows(rows)
     assert s["vs_base"] | {"win_rate_ci": None} == {
         "significant": 2, "wins": 2, "losses": 1, "ties": 1, "sign_test_p": 0.5,
@@ -36,7 +36,10 @@ def test_existence_summary_counts_gains_sign_test_and_targets():
     expected = {"vs_base": 0.5, "vs_zero": 0.25,
                 "failure_reduction": pytest.approx(np.mean([0.2 / 0.5, 0, -0.05 / 0.4, 0.1 / 0.7])),
                 "mean_gain": pytest.approx(np.mean([0.2, 0, -0.05, 0.1]))}
-    assert s["targets"] == {"pairs": 4, "judged": expected, "fresh": expected}
+    on_fresh = expected | {"below_zero": 1, "below_base": 0}
+    assert s["targets"] == {"pairs": 4, "judged": expected, "fresh": on_fresh, "fresh_2": on_fresh}
+    assert s["episodes"] == {"mean": 1212.5, "max": 1250}
+    assert "significantly below the zero ticket in 1 (target 0)" in table and "at most 1250" in table
     strong = existence.summary_rows([*rows, _row(0.9, 0.9, 1.0, 0.001, 0.001)])["targets"]
     assert strong["pairs"] == 4 and strong["judged"] == expected  # a base above 85% is not a target pair
 

@@ -30,7 +30,7 @@ def test_where_any_noise_hurts_the_zero_ticket_is_delivered(tmp_path, capsys):
     best = summary["best"]
     assert best["source"] == "zero ticket" and best["success_rate"] == summary["zero"]["success_rate"]
     assert best["success_rate"] > summary["base"]["success_rate"]
-    assert "(the zero ticket, w = 0)" in said
+    assert "(the zero ticket, w = 0)" in said and f"ticket {best['ticket_id']} (w = 0) " in said
     delivered = Ticket.load(best["ticket_path"])
     assert not delivered.noise.any() and delivered.metadata["source"] == "zero ticket"
     assert delivered.id == Ticket(zero_ticket((4, 2)).noise, {"policy_fingerprint": delivered.metadata[

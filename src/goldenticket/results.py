@@ -10,7 +10,8 @@ from goldenticket.tickets import Ticket
 
 
 def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
-    """Verdict rows as people read them: base, zero ticket, then each ticket (`tickets` by id)."""
+    """Verdict rows as people read them: base, zero ticket, then each ticket (`tickets` by id, or by
+    `FoundTicket.label`)."""
     return {"base": base, "zero ticket": zero} | {f"ticket {t}": row for t, row in tickets.items()}
 
 
@@ -32,6 +33,11 @@ class FoundTicket:
     def name(self) -> str:
         """The id, and what it is when it is the zero ticket."""
         return self.id + (" (the zero ticket, w = 0)" if self.source == "zero ticket" else "")
+
+    @property
+    def label(self) -> str:
+        """Its row's label in the verdict table (`arm_rows`)."""
+        return self.id + (" (w = 0)" if self.source == "zero ticket" else "")
 
     def to_dict(self) -> dict:
         validation = {k: v for k, v in (("validation_score", self.validation_score), ("source", self.source))
@@ -116,7 +122,7 @@ class Summary:
 
     def rows(self) -> dict[str, VerdictRow]:
         """The verdict rows as people read them (`arm_rows`)."""
-        return arm_rows(self.base, self.zero, {t.id: t.heldout for t in self.tickets})
+        return arm_rows(self.base, self.zero, {t.label: t.heldout for t in self.tickets})
 
     def to_dict(self) -> dict:
         """summary.json."""

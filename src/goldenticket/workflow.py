@@ -129,7 +129,7 @@ def _pictures(cfg: SearchConfig, names: Names, summary: Summary | MultitaskSumma
                   f"{names.policy}: one ticket for {len(summary.verdict.tasks)} tasks")
         judged = summary.verdict.tickets
     else:
-        arms_png(to_dicts(summary.rows()), out / "verdict.png", title, best=f"ticket {summary.best.id}")
+        arms_png(to_dicts(summary.rows()), out / "verdict.png", title, best=f"ticket {summary.best.label}")
         judged = [t.id for t in summary.tickets]
     span = summary.run.heldout_seeds
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
