@@ -62,8 +62,9 @@ DEFAULT_SEARCH = SearchConfig("", "").method
 SEARCHES, RACED = ("cem", "rs", DEFAULT_SEARCH), ("cem", DEFAULT_SEARCH)
 RUNS = Path(__file__).parent / "runs" / "dsrl"
 NOISE_MAGNITUDE = 1.5
+# buffer_size: room for every transition of a run of hours (one per policy call), saved at each checkpoint
 SAC = dict(learning_rate=3e-4, batch_size=256, tau=0.005, gamma=0.99, train_freq=1, gradient_steps=20,
-           learning_starts=100)
+           learning_starts=100, buffer_size=100_000)
 CHECKPOINT = 400  # SAC steps between held-out judgements
 BUDGETS = (100, 300, 1000, 3000, 10000)
 SEARCH_SEEDS, HELDOUT = 20, 200

@@ -63,7 +63,8 @@ def test_readme_demo_and_its_fresh_seed_check_print_what_readme_says(tmp_path):
     said = re.search(r"It gives the ticket (\S+ \[.*?\]) against the base's (\S+ \[.*?\]) \(p = (\S+)\)\.",
                      README)
     ticket, base, p = said.groups()
-    assert re.search(rf"ticket ac7033f127b8 +{re.escape(ticket).replace(' ', ' +')} +300 +{p} ", printed)
+    ticket_id = re.search(r"--ticket demo-out/tickets/(\w{12})\.safetensors", README).group(1)
+    assert re.search(rf"ticket {ticket_id} +{re.escape(ticket).replace(' ', ' +')} +300 +{p} ", printed)
     assert re.search(rf"base +{re.escape(base).replace(' ', ' +')} +300 ", printed)
 
 
