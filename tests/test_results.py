@@ -72,3 +72,5 @@ def test_without_a_golden_ticket_the_verdict_says_what_to_run_instead():
                        (row(49, 0.7), "Keep the base policy (fresh Gaussian noise)")):
         text = verdict_text({"base": row(50), "zero ticket": zero, "ticket t": weak}, weak, "t", "")
         assert "No golden ticket: the best ticket (t, 52.0%)" in text and said in text
+    judged_zero = {"base": row(50), "zero ticket": row(60, 0.01), "ticket z (w = 0)": row(60, 0.06)}
+    assert "Keep the base policy" in verdict_text(judged_zero, judged_zero["ticket z (w = 0)"], "z", "")
