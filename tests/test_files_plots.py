@@ -145,10 +145,10 @@ def test_search_marks_the_tickets_the_run_validated_and_judged(tmp_path, drawn, 
     verdict, search = (figure.axes[0] for figure in drawn)
     best = summary.best
     assert [t.get_text() for t in verdict.get_yticklabels() if t.get_fontweight() == "bold"] == [
-        f"ticket {best.id}"]
+        f"ticket {best.label}"]
     assert len(_points(search, "sent to validation")) == 3 * cfg.top_k
     assert [y for _, y in _points(search, "judged on held-out seeds")] == [
-        t.search_score for t in summary.tickets]
+        t.search_score for t in summary.tickets if t.source != "zero ticket"]  # the zero ticket: no search
     assert [y for _, y in _points(search, "chosen ticket (best held-out success)")] == [best.search_score]
     base_line = next(line for line in search.lines if line.get_label().startswith("base policy"))
     assert base_line.get_ydata()[0] == summary.base.rate.success_rate  # objective "success"
