@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from goldenticket.evaluation import MultitaskVerdict, VerdictRow, p_value_note, to_dicts
 from goldenticket.tickets import Ticket
 
+ZERO_MARK = " (w = 0)"  # ends the zero ticket's label in the verdict table when it is judged as a ticket
+
 
 def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
     """Verdict rows as people read them: base, zero ticket, then each ticket (`tickets` by id, or by
@@ -37,7 +39,7 @@ class FoundTicket:
     @property
     def label(self) -> str:
         """Its row's label in the verdict table (`arm_rows`)."""
-        return self.id + (" (w = 0)" if self.source == "zero ticket" else "")
+        return self.id + (ZERO_MARK if self.source == "zero ticket" else "")
 
     def to_dict(self) -> dict:
         validation = {k: v for k, v in (("validation_score", self.validation_score), ("source", self.source))
