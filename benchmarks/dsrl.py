@@ -1,18 +1,19 @@
 """DSRL-SAC against CEM, RS and CMA-ES: held-out success against wall time and env steps.
 
-    pip install -e ".[dsrl]" && python benchmarks/dsrl.py [--minutes 60] [--pairs TASK ...]
+    pip install -e ".[dsrl]" && python benchmarks/dsrl.py [--minutes 60] [--pairs TASK ...] [--workers 1]
 
 DSRL (diffusion steering by RL) trains SAC whose action is the frozen policy's initial noise,
 chosen per observation; goldenticket searches one constant noise. Both get the same bundled
 policies, tasks, search seeds (SAC's training episodes cycle through them) and the same HELDOUT
-held-out seeds, and use both cores: SAC on 2 torch threads, the searches on 2 workers.
+held-out seeds, and the same cores: SAC on `--workers` torch threads, the searches on `--workers`
+workers (default 1: one core each, so two pairs can run side by side as two processes).
 
 - DSRL-SAC (stable-baselines3, the DSRL authors' settings): actor and critic lr 3e-4, batch
   256, tau 0.005, gamma 0.99, 20 gradient steps per environment step (UTD 20), actions in
   [-1, 1] scaled to noise in [-1.5, 1.5]; one SAC step is one policy call (a chunk of actions),
   reward 1 on success. Trained for `--minutes` of wall time per pair; every CHECKPOINT steps the
   deterministic actor is judged on the held-out seeds (judging and saving time not counted).
-- CEM, RS and CMA-ES, the default search (goldenticket, paper defaults), at budgets BUDGETS,
+- CEM and CMA-ES, the default search (goldenticket, paper defaults), at budgets BUDGETS,
   each search timed from scratch; its top ticket judged on the same held-out seeds.
 
 Resumable: each pair's folder `--runs`/<task> keeps SAC's model and replay buffer, the env's
@@ -59,14 +60,14 @@ from goldenticket.workflow import query_evaluator
 
 PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies with the lowest base
 DEFAULT_SEARCH = SearchConfig("", "").method
-SEARCHES, RACED = ("cem", "rs", DEFAULT_SEARCH), ("cem", DEFAULT_SEARCH)
+SEARCHES = ("cem", DEFAULT_SEARCH)
 RUNS = Path(__file__).parent / "runs" / "dsrl"
 NOISE_MAGNITUDE = 1.5
 # buffer_size: room for every transition of a run of hours (one per policy call), saved at each checkpoint
 SAC = dict(learning_rate=3e-4, batch_size=256, tau=0.005, gamma=0.99, train_freq=1, gradient_steps=20,
            learning_starts=100, buffer_size=100_000)
 CHECKPOINT = 400  # SAC steps between held-out judgements
-BUDGETS = (100, 300, 1000, 3000, 10000)
+BUDGETS = (100, 300, 1000, 3000)
 SEARCH_SEEDS, HELDOUT = 20, 200
 
 
@@ -116,19 +117,19 @@ def heldout_success(policy, task) -> float:
     return float(np.mean([r.success for r in results]))
 
 
-def settings() -> dict:
+def settings(workers: int) -> dict:
     """What a pair's folder is computed with (as JSON reads it back)."""
     return json.loads(json.dumps({"sac": SAC, "noise_magnitude": NOISE_MAGNITUDE, "checkpoint": CHECKPOINT,
-                                  "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT}))
+                                  "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT, "workers": workers}))
 
 
-def check_settings(folder: Path) -> None:
+def check_settings(folder: Path, workers: int) -> None:
     """Record the settings in `folder`, or raise UserError if it holds a run made with others."""
     path = folder / "settings.json"
-    if path.exists() and json.loads(path.read_text()) != settings():
-        raise UserError(f"{folder} holds a run made with other settings; name another --runs folder or "
-                        "remove it")
-    write_atomic(path, json.dumps(settings(), indent=2) + "\n")
+    if path.exists() and json.loads(path.read_text()) != settings(workers):
+        raise UserError(f"{folder} holds a run made with other settings (--workers included); name another "
+                        "--runs folder or remove it")
+    write_atomic(path, json.dumps(settings(workers), indent=2) + "\n")
 
 
 def cached(path: Path, compute: Callable):
@@ -249,13 +250,13 @@ def race(dsrl: list[dict], search: list[dict], n: int) -> list[dict]:
 
 def run_pair(task_name: str, minutes: float, folder: Path, workers: int) -> dict:
     """One pair's base, DSRL and search curves (resumed from and kept in `folder`) and verdicts."""
-    check_settings(folder)
+    check_settings(folder, workers)
     base = cached(folder / "base.json", lambda: heldout_success(load_policy(f"metaworld/{task_name}/flow"),
                                                                 get_task(f"metaworld/{task_name}")))
     result = {"base": base, "dsrl": dsrl_curve(task_name, minutes, folder)}
     result |= {method: search_curve(task_name, method, workers, folder) for method in SEARCHES}
     return result | {"plateaued": plateaued(result["dsrl"], HELDOUT),
-                     "race": {method: race(result["dsrl"], result[method], HELDOUT) for method in RACED}}
+                     "race": {method: race(result["dsrl"], result[method], HELDOUT) for method in SEARCHES}}
 
 
 def span(values: list[float | None], form: str) -> str:
@@ -302,7 +303,7 @@ def plot(results: dict, path: Path) -> None:
 
     fig = Figure(figsize=(5 * len(results), 4))
     for ax, (task, r) in zip(np.atleast_1d(fig.subplots(1, len(results))), results.items(), strict=True):
-        for name, style in zip(("dsrl", *SEARCHES), ("-o", "-s", "--^", "-d"), strict=True):
+        for name, style in zip(("dsrl", *SEARCHES), ("-o", "-s", "--^"), strict=True):
             ax.plot([p["seconds"] for p in r[name]], [p["success"] for p in r[name]], style,
                     label="DSRL-SAC" if name == "dsrl" else name.upper())
         ax.axhline(r["base"], color="0.45", linestyle="--", label="base")
@@ -320,12 +321,13 @@ def main() -> None:
     parser.add_argument("--pairs", nargs="+", choices=PAIRS, default=PAIRS[:2], metavar="TASK",
                         help=f"tasks to run, of: {', '.join(PAIRS)} (default: the first two)")
     parser.add_argument("--runs", type=Path, default=RUNS, help="folder of the pairs' resumable runs")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=1,
+                        help="SAC's torch threads and the searches' workers (default: 1)")
     parser.add_argument("--no-write", action="store_true", help="print the table, write no results files")
     args = parser.parse_args()
-    if args.minutes <= 0:
-        parser.error("--minutes must be > 0")
-    torch.set_num_threads(2)
+    if args.minutes <= 0 or args.workers < 1:
+        parser.error("--minutes must be > 0 and --workers >= 1")
+    torch.set_num_threads(args.workers)
     try:
         results = {task: run_pair(task, args.minutes, args.runs / task, args.workers) for task in args.pairs}
     except UserError as exc:
@@ -334,7 +336,8 @@ def main() -> None:
     if args.no_write:
         print(text)
         return
-    record = {"settings": settings() | {"budgets": BUDGETS, "minutes": args.minutes}, "results": results}
+    record = {"settings": settings(args.workers) | {"budgets": BUDGETS, "minutes": args.minutes},
+              "results": results}
     write_results("dsrl", record, text, lambda path: plot(results, path))
 
 

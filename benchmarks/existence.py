@@ -120,15 +120,21 @@ def summary_rows(rows: list[dict]) -> dict:
         out["fresh"]["mean_heldout"] = float(np.mean([r["best"]["success_rate"] for r in golden]))
         out["fresh"]["mean_fresh"] = float(np.mean([r["fresh"]["success_rate"] for r in golden]))
     out["base_floor"] = [base_floor(rows, bar) for bar in (0.9, 0.97)]
+    return out | target_summary(rows)
+
+
+def target_summary(rows: list[dict]) -> dict:
+    """The targets over the pairs of `rows` with a weak base, per seed range; over all of `rows`,
+    how many best tickets are significantly below the zero ticket and the base on each fresh range,
+    and the episodes search and validation spent."""
     weak = [r for r in rows if r["base"]["success_rate"] <= WEAK_BASE]
-    out["targets"] = {"pairs": len(weak), "judged": targets(weak, lambda r: r)} | {
+    out = {"pairs": len(weak), "judged": targets(weak, lambda r: r)} | {
         key: targets(weak, lambda r, key=key: r[key] | {"best": r[key]}) for key in FRESH_RANGES}
     for key in FRESH_RANGES:
-        out["targets"][key]["below_zero"] = sum(r[key]["p_below_zero"] < 0.05 for r in rows)
-        out["targets"][key]["below_base"] = sum(r[key]["p_below_base"] < 0.05 for r in rows)
+        out[key]["below_zero"] = sum(r[key]["p_below_zero"] < 0.05 for r in rows)
+        out[key]["below_base"] = sum(r[key]["p_below_base"] < 0.05 for r in rows)
     spent = [r["search_and_validation"] for r in rows]
-    out["episodes"] = {"mean": float(np.mean(spent)), "max": max(spent)}
-    return out
+    return {"targets": out, "episodes": {"mean": float(np.mean(spent)), "max": max(spent)}}
 
 
 def base_floor(rows: list[dict], bar: float, share: float = 0.9) -> dict | None:

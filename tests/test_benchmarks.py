@@ -1,6 +1,7 @@
 import json
 import sys
 
+import budget_curve
 import dsrl
 import existence
 import numpy as np
@@ -52,6 +53,27 @@ def test_base_floor_is_the_lowest_base_above_which_nine_in_ten_pairs_reach_the_b
     assert existence.base_floor(rows, 1.01) is None
     table = existence.markdown(rows, existence.summary_rows(rows), 60.0)
     assert "**Base floor** for the bar 90% (the paper's T*): 70.0%. Of the 4 pairs" in table
+
+
+def test_budget_curve_adds_kept_budgets_to_the_existence_tables_point(tmp_path, monkeypatch):
+    weak = [_row(0.5, 0.6, 0.7, 0.001, 0.04), _row(0.3, 0.3, 0.4, 0.01, 0.2)]
+    rows = [*weak, _row(0.9, 0.9, 1.0, 0.001, 0.001)]
+    monkeypatch.setattr(budget_curve, "existence_rows", lambda: rows)
+    monkeypatch.setattr(budget_curve, "ROWS", tmp_path)
+    assert budget_curve.weak_pairs() == [("metaworld/t", "metaworld/t/flow")] * 2
+    (tmp_path / "2000").mkdir()
+    (tmp_path / "2000" / "a.json").write_text(json.dumps(_row(0.5, 0.6, 0.9, 0.001, 0.01, spent=2400)))
+    assert budget_curve.kept_budgets() == [850]  # one of two pairs kept: not a point yet
+    (tmp_path / "2000" / "b.json").write_text(json.dumps(_row(0.3, 0.3, 0.8, 0.001, 0.01, spent=2400)))
+    points = budget_curve.curve()
+    assert [p["budget"] for p in points] == [850, 2000]
+    assert points[0]["targets"]["fresh"]["mean_gain"] == pytest.approx(0.15)
+    assert points[1]["targets"]["fresh"] | {"failure_reduction": 0} == {
+        "vs_base": 1.0, "vs_zero": 1.0, "failure_reduction": 0, "mean_gain": pytest.approx(0.45),
+        "below_zero": 0, "below_base": 0}
+    assert points[1]["episodes"] == {"mean": 2400, "max": 2400}
+    table = budget_curve.markdown(points)
+    assert "--budgets 2000`" in table and "| 2000 | 2400 (2400) | fresh seeds | 100% | 100% |" in table
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():
@@ -127,7 +149,7 @@ def test_dsrl_race_times_each_side_to_the_others_best_with_wilson_bounds():
     search = _curve((5, 0.55), (10, 0.62), (20, 0.64), budget=True)
     pair = {"base": 0.5, "dsrl": dsrl_curve, "plateaued": False} | dict.fromkeys(dsrl.SEARCHES, search)
     table = dsrl.markdown({"reach-v3": pair | {"race": {m: dsrl.race(dsrl_curve, search, n=100)
-                                                        for m in dsrl.RACED}}}, minutes=60)
+                                                        for m in dsrl.SEARCHES}}}, minutes=60)
     assert "| 70% (300 s, 3000) | no |" in table
     assert "| 300 s | not reached (10 s to not reached) | not reached (not reached to 30x) |" in table
 
@@ -144,11 +166,13 @@ def test_dsrl_runs_folder_keeps_settings_and_search_points(tmp_path, monkeypatch
     calls = []
     assert dsrl.cached(tmp_path / "p.json", lambda: calls.append(1) or {"success": 0.5}) == {"success": 0.5}
     assert dsrl.cached(tmp_path / "p.json", lambda: calls.append(1)) == {"success": 0.5} and calls == [1]
-    dsrl.check_settings(tmp_path)
-    dsrl.check_settings(tmp_path)
+    dsrl.check_settings(tmp_path, workers=1)
+    dsrl.check_settings(tmp_path, workers=1)
+    with pytest.raises(UserError, match="other settings"):
+        dsrl.check_settings(tmp_path, workers=2)  # its seconds were measured on one core
     monkeypatch.setattr(dsrl, "HELDOUT", dsrl.HELDOUT + 1)
     with pytest.raises(UserError, match="other settings"):
-        dsrl.check_settings(tmp_path)
+        dsrl.check_settings(tmp_path, workers=1)
 
 
 @pytest.mark.slow
