@@ -33,6 +33,9 @@ def test_where_any_noise_hurts_the_zero_ticket_is_delivered(tmp_path, capsys):
     assert "(the zero ticket, w = 0)" in said and f"ticket {best['ticket_id']} (w = 0) " in said
     delivered = Ticket.load(best["ticket_path"])
     assert not delivered.noise.any() and delivered.metadata["source"] == "zero ticket"
+    with RunStore(out / "run.sqlite") as store:  # the zero arm's held-out episodes serve it: none rerun
+        judged = {r.ticket_id for r in store.episodes(seed_set="heldout")}
+    assert best["ticket_id"] not in judged and {"base", "zero"} <= judged
     assert delivered.id == Ticket(zero_ticket((4, 2)).noise, {"policy_fingerprint": delivered.metadata[
         "policy_fingerprint"]}).id
 

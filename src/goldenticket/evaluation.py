@@ -11,7 +11,7 @@ from tqdm import tqdm
 
 from goldenticket.config import MAX_NONFINITE, EngineOptions, check_max_nonfinite
 from goldenticket.errors import OptionError, UserError
-from goldenticket.noise import Gaussian, NoiseSource
+from goldenticket.noise import Constant, Gaussian, NoiseSource
 from goldenticket.rollout import NONFINITE, Engine, Episode, EpisodeResult
 from goldenticket.stats import Rate, holm_adjust, paired_exact_test
 from goldenticket.store import EpisodeRow, RunStore
@@ -211,10 +211,24 @@ def judge(evaluator: Evaluator, sources: dict[str, NoiseSource], seeds: Sequence
           base: NoiseSource | None = None, task: str | None = None) -> dict[str, Judged]:
     """The base policy and each source on the same held-out seeds (of `task`, default the
     engine's first), each tested against base and, when a source is labelled "zero", every other
-    source also against the zero ticket."""
-    jobs = [("base", base or Gaussian(), seeds)] + [(k, s, seeds) for k, s in sources.items()]
-    return judged_arms({label: results for (label, _, _), results in zip(jobs, evaluator.run(jobs, task),
-                                                                      strict=True)})
+    source also against the zero ticket. Sources of the same constant noise share one run's episodes."""
+    first = same_constants(sources)
+    jobs = [("base", base or Gaussian(), seeds)]
+    jobs += [(label, source, seeds) for label, source in sources.items() if first[label] == label]
+    results = dict(zip((label for label, _, _ in jobs), evaluator.run(jobs, task), strict=True))
+    return judged_arms({"base": results["base"]} | {label: results[first[label]] for label in sources})
+
+
+def judge_size(sources: dict[str, NoiseSource], seeds: int) -> int:
+    """The episodes `judge` runs for `sources` on `seeds` seeds, the base's included."""
+    return seeds * (len(set(same_constants(sources).values())) + 1)
+
+
+def same_constants(sources: dict[str, NoiseSource]) -> dict[str, str]:
+    """Each label -> the first label whose source is the same constant noise (itself if none is)."""
+    first: dict[tuple, str] = {}
+    return {label: first.setdefault((s.noise.shape, s.noise.dtype.str, s.noise.tobytes()), label)
+            if isinstance(s, Constant) else label for label, s in sources.items()}
 
 
 def judged_arms(outcomes: dict[str, list[EpisodeResult]]) -> dict[str, Judged]:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
-from goldenticket.evaluation import ALPHA, Evaluator, Judged, VerdictRow, judge
+from goldenticket.evaluation import ALPHA, Evaluator, Judged, VerdictRow, judge, judge_size
 from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
@@ -59,7 +59,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
     with Evaluator.open(cfg.policy, tasks, cfg, loaded=policy) as evaluator, \
             open_store(out, cfg, names) as store, \
-            evaluator.progress(cfg.heldout * (len(sources) + 1) * len(tasks), "transfer matrix"):
+            evaluator.progress(judge_size(sources, cfg.heldout) * len(tasks), "transfer matrix"):
         evaluator.store = store  # the engine starts first: options it refuses leave no run folder
         per_task = {t.name: judge(evaluator, sources, heldout, base, t.name) for t in tasks}
     study = matrix(per_task, found_on, names.policy, heldout)

@@ -19,6 +19,7 @@ from goldenticket.evaluation import (
     VerdictRow,
     adjust_for_multiplicity,
     judge,
+    judge_size,
     multitask_verdict,
     to_dicts,
 )
@@ -81,7 +82,7 @@ def find_golden_tickets(cfg: SearchConfig, out: Path) -> Summary | MultitaskSumm
         tickets = _with_zero(chosen, others[0]) if validation else chosen
         tracker.validated(candidates + others)
         sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
-        with evaluator.progress(cfg.heldout * (len(tickets) + 2) * len(tasks), "held-out: top tickets"):
+        with evaluator.progress(judge_size(sources, cfg.heldout) * len(tasks), "held-out: top tickets"):
             per_task = {name: judge(evaluator, sources, heldout, base, name) for name in task_names}
         front, fronts = _front(cfg, names, evaluator, result, (search_seeds, heldout), (base, zero), expand,
                                tasks[0].max_steps, out) if cfg.front_objective else (None, {})
