@@ -1,4 +1,4 @@
-"""DSRL-SAC against CEM, RS and CMA-ES: held-out success against wall time and env steps.
+"""DSRL-SAC against CEM and CMA-ES: held-out success against wall time and env steps.
 
     pip install -e ".[dsrl]" && python benchmarks/dsrl.py [--minutes 60] [--pairs TASK ...] [--workers 1]
 
