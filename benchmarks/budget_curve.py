@@ -26,6 +26,8 @@ from goldenticket.files import write_atomic
 ROWS = RESULTS / "budget_curve"
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
+TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
+          "mean_gain": "mean gain in success rate"}
 
 
 def existence_rows() -> list[dict]:
@@ -104,7 +106,7 @@ def plot(points: list[dict], path) -> None:
                     "-o", label=said)
         ax.axhline(target, color="tab:red", ls="--", label=f"target {target:.0%}")
         ax.axvline(1250, color="0.6", ls=":", label="1250 episodes")
-        ax.set(xlabel="search + validation episodes per pair (mean)", title=metric.replace("_", " "))
+        ax.set(xlabel="search + validation episodes per pair (mean)", title=TITLES[metric])
         ax.legend(fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
