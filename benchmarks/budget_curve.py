@@ -34,10 +34,14 @@ def existence_rows() -> list[dict]:
     return json.loads((RESULTS / "existence.json").read_text())["pairs"]
 
 
+def weak_rows() -> list[dict]:
+    """The existence table's rows of the pairs with a weak base, in its order."""
+    return [r for r in existence_rows() if r["base"]["success_rate"] <= WEAK_BASE]
+
+
 def weak_pairs() -> list[tuple[str, str]]:
     """(task, policy) of the existence table's pairs with a weak base, in its order."""
-    return [(f"metaworld/{r['task']}", f"metaworld/{r['task']}/{r['policy']}") for r in existence_rows()
-            if r["base"]["success_rate"] <= WEAK_BASE]
+    return [(f"metaworld/{r['task']}", f"metaworld/{r['task']}/{r['policy']}") for r in weak_rows()]
 
 
 def budget_rows(budget: int, workers: int) -> list[dict]:
@@ -57,8 +61,8 @@ def budget_rows(budget: int, workers: int) -> list[dict]:
 
 def kept_budgets() -> list[int]:
     """The budgets whose every weak pair has a kept row, with the default's."""
-    full = [int(d.name) for d in ROWS.iterdir() if len(list(d.glob("*.json"))) == len(weak_pairs())] \
-        if ROWS.exists() else []
+    pairs, folders = len(weak_pairs()), ROWS.iterdir() if ROWS.exists() else []
+    full = [int(d.name) for d in folders if len(list(d.glob("*.json"))) == pairs]
     return sorted({SETTINGS["budget"], *full})
 
 
@@ -66,9 +70,8 @@ def curve() -> list[dict]:
     """Per budget: its targets and episodes (the default budget's from the existence table)."""
     points = []
     for budget in kept_budgets():
-        rows = [r for r in existence_rows() if r["base"]["success_rate"] <= WEAK_BASE] \
-            if budget == SETTINGS["budget"] else [json.loads(p.read_text())
-                                                  for p in sorted((ROWS / str(budget)).glob("*.json"))]
+        rows = weak_rows() if budget == SETTINGS["budget"] else [
+            json.loads(p.read_text()) for p in sorted((ROWS / str(budget)).glob("*.json"))]
         points.append({"budget": budget} | target_summary(rows))
     return points
 

@@ -17,6 +17,8 @@ from goldenticket.stats import Rate, holm_adjust, paired_exact_test
 from goldenticket.store import EpisodeRow, RunStore
 from goldenticket.tasks.base import SEED_SETS, seed_set_of
 
+ZERO_MARK = " (w = 0)"  # ends the zero ticket's label in the verdict table when it is judged as a ticket
+
 ALPHA = 0.05
 Job = tuple[str, NoiseSource, Sequence[int]]  # (label, noise source, seeds)
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from goldenticket.evaluation import ZERO_MARK
+
 if TYPE_CHECKING:
     from goldenticket.evaluation import VerdictRow
     from goldenticket.results import MultitaskSummary, TransferStudy
@@ -57,8 +59,6 @@ def instead(rows: dict[str, VerdictRow]) -> str:
     """What to run when no judged ticket is golden: the zero ticket where it is golden and was not
     judged among the tickets (there its p-value is adjusted like theirs), else the base."""
     zero = rows["zero ticket"]
-    from goldenticket.results import ZERO_MARK
-
     if zero.golden and not any(label.endswith(ZERO_MARK) for label in rows):
         return (f"The zero ticket (w = 0) is: {zero.rate.success_rate:.1%}, p = {zero.p_vs_base:.3g}; "
                 "deploy it (a ticket of zeros) rather than these tickets.")

@@ -5,10 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from goldenticket.evaluation import MultitaskVerdict, VerdictRow, p_value_note, to_dicts
+from goldenticket.evaluation import ZERO_MARK, MultitaskVerdict, VerdictRow, p_value_note, to_dicts
 from goldenticket.tickets import Ticket
-
-ZERO_MARK = " (w = 0)"  # ends the zero ticket's label in the verdict table when it is judged as a ticket
 
 
 def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
