@@ -1,4 +1,4 @@
-"""DSRL-SAC against CEM and CMA-ES: held-out success against wall time and env steps.
+"""DSRL-SAC and DSRL-NA against CEM and CMA-ES: held-out success against wall time and env steps.
 
     pip install -e ".[dsrl]" && python benchmarks/dsrl.py [--minutes 60] [--pairs TASK ...] [--workers 1]
 
@@ -13,16 +13,19 @@ workers (default 1: one core each, so two pairs can run side by side as two proc
   [-1, 1] scaled to noise in [-1.5, 1.5]; one SAC step is one policy call (a chunk of actions),
   reward 1 on success. Trained for `--minutes` of wall time per pair; every CHECKPOINT steps the
   deterministic actor is judged on the held-out seeds (judging and saving time not counted).
+- DSRL-NA (noise aliasing, `dsrl_na.py`): the same SAC settings and budget, but the noise critic
+  is distilled from an action-space critic that learns by TD over the executed chunks (NA).
 - CEM and CMA-ES, the default search (goldenticket, paper defaults), at budgets BUDGETS,
   each search timed from scratch; its top ticket judged on the same held-out seeds.
 
-Resumable: each pair's folder `--runs`/<task> keeps SAC's model and replay buffer, the env's
-counters and the curve so far (rewritten after every checkpoint), the base's success and every
-search point. A rerun continues until SAC has trained `--minutes` in total, or only reports if
-it has. A resumed run is not bit-identical to an uninterrupted one (SB3 reseeds its random
-generators on load and the episode in progress starts over), but its curve continues.
+Resumable: each pair's folder `--runs`/<task> keeps, per DSRL variant (a sub-folder), its model
+and replay buffer, the env's counters and the curve so far (rewritten after every checkpoint),
+and the base's success and every search point. A rerun continues until each variant has trained
+`--minutes` in total, or only reports if they have. A resumed run is not bit-identical to an
+uninterrupted one (SB3 reseeds its random generators on load and the episode in progress starts
+over), but its curve continues.
 
-The report says whether DSRL's curve has plateaued (`plateaued`) and, against CEM and CMA-ES,
+The report says whether each DSRL curve has plateaued (`plateaued`) and, against CEM and CMA-ES,
 how long each side takes to first reach the other's best held-out success, with an interval
 from 95% Wilson bounds (`race`).
 
@@ -59,6 +62,7 @@ from goldenticket.ticket_search import make_optimizer, run_search
 from goldenticket.workflow import query_evaluator
 
 PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies with the lowest base
+VARIANTS = {"dsrl_sac": "DSRL-SAC", "dsrl_na": "DSRL-NA"}
 DEFAULT_SEARCH = SearchConfig("", "").method
 SEARCHES = ("cem", DEFAULT_SEARCH)
 RUNS = Path(__file__).parent / "runs" / "dsrl"
@@ -66,6 +70,9 @@ NOISE_MAGNITUDE = 1.5
 # buffer_size: room for every transition of a run of hours (one per policy call), saved at each checkpoint
 SAC = dict(learning_rate=3e-4, batch_size=256, tau=0.005, gamma=0.99, train_freq=1, gradient_steps=20,
            learning_starts=100, buffer_size=100_000)
+# DSRL-NA: one distillation step of the noise critic per two TD steps (10 per env step at UTD 20, as
+# the DSRL authors' configuration)
+NA = dict(distill_every=2)
 CHECKPOINT = 400  # SAC steps between held-out judgements
 BUDGETS = (100, 300, 1000, 3000)
 SEARCH_SEEDS, HELDOUT = 20, 200
@@ -87,15 +94,25 @@ class NoiseSpaceEnv(gym.Env):
         self.episodes += 1
         return self.obs, {}
 
+    @property
+    def chunk_dim(self) -> int:
+        return self.policy.n_exec * self.policy.noise_shape[1]
+
+    def chunks(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """The chunks [B, n_exec * A] the policy makes from observations [B, ...] and actions [B, H * A]."""
+        noise = (self.magnitude * np.asarray(actions, np.float32)).reshape(len(obs), *self.policy.noise_shape)
+        return self.policy.act(obs, noise).reshape(len(obs), -1)
+
     def step(self, action):
-        noise = (self.magnitude * np.asarray(action, np.float32)).reshape(1, *self.policy.noise_shape)
+        chunk = self.chunks(self.obs[None], np.asarray(action)[None])[0]
         success = done = False
-        for a in self.policy.act(self.obs[None], noise)[0]:
+        for a in chunk.reshape(self.policy.n_exec, -1):
             self.obs, success, done = self.env.step(a)
             self.t, self.env_steps = self.t + 1, self.env_steps + 1
             if success or done or self.t >= self.task.max_steps:
                 break
-        return self.obs, float(success), success, not success and (done or self.t >= self.task.max_steps), {}
+        truncated = not success and (done or self.t >= self.task.max_steps)
+        return self.obs, float(success), success, truncated, {"chunk": chunk}
 
 
 class ActorNoise:
@@ -119,8 +136,9 @@ def heldout_success(policy, task) -> float:
 
 def settings(workers: int) -> dict:
     """What a pair's folder is computed with (as JSON reads it back)."""
-    return json.loads(json.dumps({"sac": SAC, "noise_magnitude": NOISE_MAGNITUDE, "checkpoint": CHECKPOINT,
-                                  "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT, "workers": workers}))
+    return json.loads(json.dumps({"sac": SAC, "na": NA, "noise_magnitude": NOISE_MAGNITUDE,
+                                  "checkpoint": CHECKPOINT, "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT,
+                                  "workers": workers}))
 
 
 def check_settings(folder: Path, workers: int) -> None:
@@ -156,21 +174,35 @@ def save_checkpoint(folder: Path, model, curve: list[dict]) -> None:
         stale.unlink()
 
 
-def dsrl_curve(task_name: str, minutes: float, folder: Path) -> list[dict]:
-    """SAC trained until `minutes` of wall time in total, resumed from `folder`'s last checkpoint
-    (if any) and checkpointed there: (seconds, SAC steps, episodes, env steps, held-out success)."""
-    from stable_baselines3 import SAC as SACAlgorithm
+def dsrl_model(variant: str, env: NoiseSpaceEnv, path: Path | None):
+    """A DSRL variant's model on `env`: loaded from `path`, or new (seed 0) if None."""
+    if variant == "dsrl_sac":
+        from stable_baselines3 import SAC as algorithm
+        attached, built = {}, {}
+    else:
+        from dsrl_na import NoiseAliasingSAC as algorithm
+        attached = {"chunk_of": env.chunks}
+        built = NA | {"chunk_dim": env.chunk_dim, "noise_magnitude": NOISE_MAGNITUDE}
+    if path is not None:
+        return algorithm.load(path, env=env, device="cpu", **attached)
+    return algorithm("MlpPolicy", env, seed=0, device="cpu", **SAC, **attached, **built)
 
+
+def dsrl_curve(task_name: str, variant: str, minutes: float, folder: Path) -> list[dict]:
+    """A DSRL variant trained until `minutes` of wall time in total, resumed from `folder`'s last
+    checkpoint (if any) and checkpointed there: (seconds, SAC steps, episodes, env steps, held-out
+    success)."""
     policy, task = load_policy(f"metaworld/{task_name}/flow"), get_task(f"metaworld/{task_name}")
     env, saved = NoiseSpaceEnv(policy, task, seeds_in("search", SEARCH_SEEDS)), folder / "dsrl.json"
     if saved.exists():
         state = json.loads(saved.read_text())
-        model = SACAlgorithm.load(folder / state["model"], env=env, device="cpu")
+        model = dsrl_model(variant, env, folder / state["model"])
         model.load_replay_buffer(folder / state["replay_buffer"])
         curve = state["curve"]
         env.episodes, env.env_steps = curve[-1]["episodes"], curve[-1]["env_steps"]
     else:
-        model, curve = SACAlgorithm("MlpPolicy", env, seed=0, device="cpu", **SAC), []
+        folder.mkdir(parents=True, exist_ok=True)
+        model, curve = dsrl_model(variant, env, None), []
     trained = curve[-1]["seconds"] if curve else 0.0
     while trained < 60 * minutes:
         start = time.perf_counter()
@@ -180,7 +212,7 @@ def dsrl_curve(task_name: str, minutes: float, folder: Path) -> list[dict]:
                       "env_steps": env.env_steps,
                       "success": heldout_success(ActorNoise(policy, model), task)})
         save_checkpoint(folder, model, curve)
-        print(f"dsrl {task_name}: {curve[-1]}", flush=True)
+        print(f"{VARIANTS[variant]} {task_name}: {curve[-1]}", flush=True)
     return curve
 
 
@@ -253,10 +285,12 @@ def run_pair(task_name: str, minutes: float, folder: Path, workers: int) -> dict
     check_settings(folder, workers)
     base = cached(folder / "base.json", lambda: heldout_success(load_policy(f"metaworld/{task_name}/flow"),
                                                                 get_task(f"metaworld/{task_name}")))
-    result = {"base": base, "dsrl": dsrl_curve(task_name, minutes, folder)}
+    result = {"base": base} | {variant: dsrl_curve(task_name, variant, minutes, folder / variant)
+                               for variant in VARIANTS}
     result |= {method: search_curve(task_name, method, workers, folder) for method in SEARCHES}
-    return result | {"plateaued": plateaued(result["dsrl"], HELDOUT),
-                     "race": {method: race(result["dsrl"], result[method], HELDOUT) for method in SEARCHES}}
+    return result | {"plateaued": {variant: plateaued(result[variant], HELDOUT) for variant in VARIANTS},
+                     "race": {variant: {method: race(result[variant], result[method], HELDOUT)
+                                        for method in SEARCHES} for variant in VARIANTS}}
 
 
 def span(values: list[float | None], form: str) -> str:
@@ -270,28 +304,33 @@ def markdown(results: dict, minutes: float) -> str:
         return "<br>".join(f"{p['budget']}: {p['seconds']:.0f} s, {p['env_steps']}, {p['success']:.0%}"
                            for p in curve)
 
+    def best(curve):
+        top = max(curve, key=lambda p: p["success"])
+        return f"{top['success']:.0%} ({top['seconds']:.0f} s, {top['sac_steps']} steps, {top['env_steps']})"
+
     lines = [f"Regenerate: `python benchmarks/dsrl.py --minutes {minutes:g} --pairs {' '.join(results)}` "
              "(resumes from benchmarks/runs/dsrl/).", "",
-             "| task (flow policy) | base | DSRL-SAC best (at s, env steps) | plateaued | "
-             + " | ".join(f"{m.upper()}: budget, s, env steps, success" for m in SEARCHES) + " |",
-             "|---|---|---|---|" + "---|" * len(SEARCHES)]
+             "| task (flow policy) | base | " + " | ".join(
+                 f"{name} best (at s, SAC steps, env steps) | plateaued" for name in VARIANTS.values())
+             + " | " + " | ".join(f"{m.upper()}: budget, s, env steps, success" for m in SEARCHES) + " |",
+             "|---|---|" + "---|---|" * len(VARIANTS) + "---|" * len(SEARCHES)]
     for task, r in results.items():
-        best = max(r["dsrl"], key=lambda p: p["success"])
-        lines.append(f"| {task} | {r['base']:.0%} | {best['success']:.0%} ({best['seconds']:.0f} s, "
-                     f"{best['env_steps']}) | {'yes' if r['plateaued'] else 'no'} | "
-                     + " | ".join(cells(r[m]) for m in SEARCHES) + " |")
-    lines += ["", "| task | search | target: best held-out success of | DSRL-SAC, s | search, s | "
-              "speed-up (DSRL s / search s) |", "|---|---|---|---|---|---|"]
+        lines.append(f"| {task} | {r['base']:.0%} | " + " | ".join(
+            f"{best(r[v])} | {'yes' if r['plateaued'][v] else 'no'}" for v in VARIANTS)
+            + " | " + " | ".join(cells(r[m]) for m in SEARCHES) + " |")
+    lines += ["", "| task | DSRL | search | target: best held-out success of | DSRL, s | search, s | "
+              "speed-up (DSRL s / search s) |", "|---|---|---|---|---|---|---|"]
     for task, r in results.items():
-        for method, rows in r["race"].items():
-            for owner, row in zip(("DSRL-SAC", method.upper()), rows, strict=True):
-                seconds = (span(row[side], "{:.0f} s") for side in ("dsrl_seconds", "search_seconds"))
-                lines.append(f"| {task} | {method.upper()} | {owner}, {row['target']:.0%} | "
-                             + " | ".join(seconds) + f" | {span(row['speedup'], '{:.2g}x')} |")
-    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; DSRL trained {minutes:g} min per pair, "
-              f"judged every {CHECKPOINT} SAC steps; each search timed from scratch at each budget. "
-              "Plateaued: with 3 checkpoints or more, the best success before the last third of them is "
-              "inside the 95% Wilson interval of the overall best (the last third gained nothing beyond "
+        for variant, name in VARIANTS.items():
+            for method, rows in r["race"][variant].items():
+                for owner, row in zip((name, method.upper()), rows, strict=True):
+                    seconds = (span(row[side], "{:.0f} s") for side in ("dsrl_seconds", "search_seconds"))
+                    lines.append(f"| {task} | {name} | {method.upper()} | {owner}, {row['target']:.0%} | "
+                                 + " | ".join(seconds) + f" | {span(row['speedup'], '{:.2g}x')} |")
+    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; each DSRL variant trained {minutes:g} min "
+              f"per pair, judged every {CHECKPOINT} SAC steps; each search timed from scratch at each "
+              "budget. Plateaued: with 3 checkpoints or more, the best success before the last third of them "
+              "is inside the 95% Wilson interval of the overall best (the last third gained nothing beyond "
               "sampling noise). Seconds to a target: the owner's are those of its best checkpoint or budget; "
               "the other side's are its first to reach the target, by the estimate (from the 95% Wilson "
               "upper bound, optimistic, to the lower bound, pessimistic)."]
@@ -302,10 +341,10 @@ def plot(results: dict, path: Path) -> None:
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(5 * len(results), 4))
+    names = VARIANTS | {method: method.upper() for method in SEARCHES}
     for ax, (task, r) in zip(np.atleast_1d(fig.subplots(1, len(results))), results.items(), strict=True):
-        for name, style in zip(("dsrl", *SEARCHES), ("-o", "-s", "--^"), strict=True):
-            ax.plot([p["seconds"] for p in r[name]], [p["success"] for p in r[name]], style,
-                    label="DSRL-SAC" if name == "dsrl" else name.upper())
+        for (name, label), style in zip(names.items(), ("-o", "-D", "-s", "--^"), strict=True):
+            ax.plot([p["seconds"] for p in r[name]], [p["success"] for p in r[name]], style, label=label)
         ax.axhline(r["base"], color="0.45", linestyle="--", label="base")
         ax.set(xscale="log", title=f"{task} (flow)", xlabel="wall time, s", ylim=(0, 1),
                ylabel=f"held-out success ({HELDOUT})")

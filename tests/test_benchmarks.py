@@ -129,6 +129,35 @@ def test_dsrl_steers_the_frozen_policy_through_the_noise_space(one_torch_thread)
     assert actions.shape == (2, policy.n_exec, 4) and np.array_equal(actions[0], actions[1])
 
 
+@pytest.mark.slow
+def test_dsrl_na_learns_from_executed_chunks_and_resumes(one_torch_thread, tmp_path):
+    from dsrl_na import NoiseAliasingSAC
+
+    from goldenticket.policies import load_policy
+    from goldenticket.tasks import get_task, seeds_in
+
+    policy, task = load_policy("metaworld/reach-v3/flow"), get_task("metaworld/reach-v3", max_steps=12)
+    env = dsrl.NoiseSpaceEnv(policy, task, seeds_in("search", 3))
+    model = NoiseAliasingSAC("MlpPolicy", env, seed=0, device="cpu", chunk_of=env.chunks,
+                             chunk_dim=env.chunk_dim, **dsrl.SAC | QUICK_SAC)
+    model.learn(30)
+    buffer = model.replay_buffer
+    stored = slice(0, buffer.pos)
+    # each transition keeps the chunk its noise made, the one Q^A learns from
+    made = env.chunks(buffer.observations[stored, 0], buffer.actions[stored, 0])
+    assert buffer.pos > 0 and np.allclose(buffer.chunks[stored], made)
+    model.save(tmp_path / "na.zip")
+    loaded = NoiseAliasingSAC.load(tmp_path / "na.zip", env=env, device="cpu", chunk_of=env.chunks)
+    for mine, theirs in zip(model.action_critic.state_dict().values(),
+                            loaded.action_critic.state_dict().values(), strict=True):
+        assert torch.equal(mine, theirs)
+    before = [p.clone() for p in loaded.critic.parameters()]
+    model.save_replay_buffer(tmp_path / "replay.pkl")
+    loaded.load_replay_buffer(tmp_path / "replay.pkl")
+    loaded.learn(5, reset_num_timesteps=False)  # the noise critic moves by distillation alone
+    assert any(not torch.equal(a, b) for a, b in zip(before, loaded.critic.parameters(), strict=True))
+
+
 def _curve(*points, budget=False):
     return [{"seconds": s, "success": p, "env_steps": 10 * s} | ({"budget": 100 * i} if budget else {})
             for i, (s, p) in enumerate(points, 1)]
@@ -147,11 +176,18 @@ def test_dsrl_race_times_each_side_to_the_others_best_with_wilson_bounds():
     assert to_dsrl["search_seconds"] == [10, 20, 20] and to_dsrl["speedup"] == [15, 15, 30]
     assert to_search["dsrl_seconds"] == [None] * 3 and to_search["speedup"] == [None] * 3
     search = _curve((5, 0.55), (10, 0.62), (20, 0.64), budget=True)
-    pair = {"base": 0.5, "dsrl": dsrl_curve, "plateaued": False} | dict.fromkeys(dsrl.SEARCHES, search)
-    table = dsrl.markdown({"reach-v3": pair | {"race": {m: dsrl.race(dsrl_curve, search, n=100)
-                                                        for m in dsrl.SEARCHES}}}, minutes=60)
-    assert "| 70% (300 s, 3000) | no |" in table
-    assert "| 300 s | not reached (10 s to not reached) | not reached (not reached to 30x) |" in table
+    curves = {"dsrl_sac": dsrl_curve, "dsrl_na": [p | {"success": 0.4} for p in dsrl_curve]}
+    for curve in curves.values():
+        for p in curve:
+            p["sac_steps"] = p["seconds"] // 10
+    pair = {"base": 0.5, "plateaued": {"dsrl_sac": False, "dsrl_na": True}} | curves | dict.fromkeys(
+        dsrl.SEARCHES, search)
+    races = {v: {m: dsrl.race(curve, search, n=100) for m in dsrl.SEARCHES} for v, curve in curves.items()}
+    table = dsrl.markdown({"reach-v3": pair | {"race": races}}, minutes=60)
+    assert "| 70% (300 s, 30 steps, 3000) | no | 40% (100 s, 10 steps, 1000) | yes |" in table
+    assert "| DSRL-SAC | CMA-ES | DSRL-SAC, 70% | 300 s | not reached (10 s to not reached) | " \
+           "not reached (not reached to 30x) |" in table
+    assert "| DSRL-NA | CMA-ES | CMA-ES, 64% | not reached | 20 s | not reached |" in table
 
 
 def test_dsrl_plateau_means_the_last_third_of_checkpoints_gained_nothing_beyond_noise():
@@ -184,28 +220,31 @@ def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, m
     for name, value in small.items():
         monkeypatch.setattr(dsrl, name, value)
     folder = tmp_path / "reach-v3"
-    first = dsrl.dsrl_curve("reach-v3", 1e-9, folder)
-    judge = dsrl.heldout_success
 
     def interrupt(*args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(dsrl, "heldout_success", interrupt)
-    with pytest.raises(KeyboardInterrupt):  # stopped while judging its second checkpoint
-        dsrl.dsrl_curve("reach-v3", 1, folder)
-    monkeypatch.setattr(dsrl, "heldout_success", judge)
-    minutes = first[-1]["seconds"] / 60 * 1.001  # one more checkpoint
-    resumed = dsrl.dsrl_curve("reach-v3", minutes, folder)
-    assert resumed[0] == first[0] and resumed[1]["sac_steps"] == 2 * dsrl.CHECKPOINT
-    assert resumed[1]["seconds"] > first[0]["seconds"] and resumed[1]["env_steps"] > first[0]["env_steps"]
-    assert resumed[1]["episodes"] > first[0]["episodes"]
-    assert sorted(p.name for p in folder.glob("*-*.*")) == ["replay-40.pkl", "sac-40.zip"]
-    assert load_from_pkl(folder / "replay-40.pkl").pos == 2 * dsrl.CHECKPOINT  # the buffer carried over
+    judge, curves = dsrl.heldout_success, {}
+    for variant in dsrl.VARIANTS:
+        first = dsrl.dsrl_curve("reach-v3", variant, 1e-9, folder / variant)
+        monkeypatch.setattr(dsrl, "heldout_success", interrupt)
+        with pytest.raises(KeyboardInterrupt):  # stopped while judging its second checkpoint
+            dsrl.dsrl_curve("reach-v3", variant, 1, folder / variant)
+        monkeypatch.setattr(dsrl, "heldout_success", judge)
+        minutes = first[-1]["seconds"] / 60 * 1.001  # one more checkpoint
+        curves[variant] = resumed = dsrl.dsrl_curve("reach-v3", variant, minutes, folder / variant)
+        assert resumed[0] == first[0] and resumed[1]["sac_steps"] == 2 * dsrl.CHECKPOINT
+        assert resumed[1]["seconds"] > first[0]["seconds"] and resumed[1]["env_steps"] > first[0]["env_steps"]
+        assert resumed[1]["episodes"] > first[0]["episodes"]
+        assert sorted(p.name for p in (folder / variant).glob("*-*.*")) == ["replay-40.pkl", "sac-40.zip"]
+        assert load_from_pkl(folder / variant / "replay-40.pkl").pos == 2 * dsrl.CHECKPOINT  # carried over
+    minutes = min(curve[-1]["seconds"] for curve in curves.values()) / 60  # both trained that long
     monkeypatch.setattr(dsrl, "ActorNoise", interrupt)  # trained long enough: neither trains nor judges
     monkeypatch.setattr(dsrl, "write_results", interrupt)
     monkeypatch.setattr(sys, "argv", ["dsrl.py", "--minutes", str(minutes), "--pairs", "reach-v3", "--runs",
                                       str(tmp_path), "--workers", "1", "--no-write"])
     dsrl.main()
-    assert json.loads((folder / "dsrl.json").read_text())["curve"] == resumed
+    for variant, curve in curves.items():
+        assert json.loads((folder / variant / "dsrl.json").read_text())["curve"] == curve
     assert {p.name for p in folder.glob("*-20.json")} == {f"{m}-20.json" for m in dsrl.SEARCHES}
     assert "| reach-v3 | " in capsys.readouterr().out
