@@ -141,6 +141,15 @@ def test_cma_es_leaves_numpys_global_random_state_alone():
     assert record_queries("cma-es", rng_seed=3) == record_queries("cma-es", rng_seed=3)
 
 
+def test_cma_es_starts_from_the_mean_it_is_given():
+    start = np.full(SHAPE, 3.0)
+    asked = make_optimizer("cma-es", SHAPE, SEEDS, np.random.default_rng(0), mean=start, sigma_init=0.1).ask()
+    tickets = np.array([q.ticket for q in asked])
+    assert np.abs(tickets.mean(axis=0) - start).max() < 0.2 and tickets.std() < 0.2
+    with pytest.raises(UserError, match="noise shape"):
+        make_optimizer("cma-es", SHAPE, SEEDS, np.random.default_rng(0), mean=np.zeros(5))
+
+
 def returns_by_ticket(queries: list[Query]) -> list[np.ndarray]:
     """Deterministic returns: every episode of a ticket returns its first entry."""
     return [np.full(len(q.seeds), float(q.ticket[0, 0])) for q in queries]

@@ -280,8 +280,9 @@ class CEMBounds(_RacedCEM):
 
 
 class CMAES(_Base):
-    """CMA-ES (the `cma` package) over the flattened ticket, from mean 0 and step size
-    `sigma_init`; `population` tickets per ask, each on every search seed, scored by mean return.
+    """CMA-ES (the `cma` package) over the flattened ticket, from `mean` (default w = 0, a ticket of
+    the noise shape otherwise) and step size `sigma_init`; `population` tickets per ask, each on
+    every search seed, scored by mean return.
 
     `cma` draws from numpy's global random state. Each call into it runs with this optimizer's
     own state (seeded from `rng`) swapped in, and the caller's global state swapped back after,
@@ -292,12 +293,15 @@ class CMAES(_Base):
 
     def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
                  rng: np.random.Generator, *, population: int = 20, sigma_init: float = 1.0,
-                 iterations: int | None = None):
+                 mean: np.ndarray | None = None, iterations: int | None = None):
         import cma
 
         super().__init__(noise_shape, seeds, rng)
         _require(population >= 2, f"population must be >= 2, got {population}")
         _require(sigma_init > 0, f"sigma_init must be > 0, got {sigma_init}")
+        start = np.zeros(self.noise_shape) if mean is None else np.asarray(mean, dtype=np.float64)
+        _require(start.shape == self.noise_shape, f"mean must have the noise shape {self.noise_shape}, "
+                                                  f"got {start.shape}")
         _check_iterations(iterations)
         self.iterations, self.iteration = iterations, 0
         self._numpy_state = np.random.RandomState(int(rng.integers(2**32))).get_state()
@@ -305,7 +309,7 @@ class CMAES(_Base):
                    "tolflatfitness": math.inf, "tolfun": 0, "tolfunhist": 0, "tolx": 0,
                    "tolstagnation": math.inf}
         self._es = self._own_numpy(lambda: cma.CMAEvolutionStrategy(
-            np.zeros(math.prod(self.noise_shape)), sigma_init, options))
+            start.ravel(), sigma_init, options))
         self._asked: list[np.ndarray] = []
 
     def ask(self) -> list[Query]:
