@@ -7,8 +7,9 @@ the policy's own N(0, I) (clipped to the actor's range). Noises that the policy 
 chunk (aliases) thus share whatever any of them taught Q^A. From Wagenmaker et al., "Steering
 Your Diffusion Policy with Latent Space Reinforcement Learning" (arXiv 2506.15799).
 
-The environment's `info["chunk"]` holds the chunk each step executed (flattened); `chunk_of(obs,
-actions)` maps the actor's actions (noise over its magnitude, in [-1, 1]) to the policy's chunks.
+The environment's `info["chunk"]` holds the chunk each step's noise made (flattened; its actions
+run until the episode ends); `chunk_of(obs, actions)` maps the actor's actions (noise over its
+magnitude, in [-1, 1]) to the policy's chunks.
 """
 
 from __future__ import annotations
