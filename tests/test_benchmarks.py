@@ -238,7 +238,7 @@ def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, m
         assert resumed[1]["episodes"] > first[0]["episodes"]
         assert sorted(p.name for p in (folder / variant).glob("*-*.*")) == ["replay-40.pkl", "sac-40.zip"]
         assert load_from_pkl(folder / variant / "replay-40.pkl").pos == 2 * dsrl.CHECKPOINT  # carried over
-    minutes = min(curve[-1]["seconds"] for curve in curves.values()) / 60  # both trained that long
+    minutes = min(curve[-1]["seconds"] for curve in curves.values()) / 60 * 0.999  # both trained longer
     monkeypatch.setattr(dsrl, "ActorNoise", interrupt)  # trained long enough: neither trains nor judges
     monkeypatch.setattr(dsrl, "write_results", interrupt)
     monkeypatch.setattr(sys, "argv", ["dsrl.py", "--minutes", str(minutes), "--pairs", "reach-v3", "--runs",
