@@ -1,6 +1,6 @@
 """DSRL-SAC and DSRL-NA against CEM and CMA-ES: held-out success against wall time and env steps.
 
-    pip install -e ".[dsrl]" && python benchmarks/dsrl.py [--minutes 60] [--pairs TASK ...] [--workers 1]
+    pip install -e ".[dsrl]" && python benchmarks/dsrl.py [--minutes 60] [--na-minutes M] [--pairs TASK ...]
 
 DSRL (diffusion steering by RL) trains SAC whose action is the frozen policy's initial noise,
 chosen per observation; goldenticket searches one constant noise. Both get the same bundled
@@ -14,14 +14,15 @@ workers (default 1: one core each, so two pairs can run side by side as two proc
   reward 1 on success. Trained for `--minutes` of wall time per pair; every CHECKPOINT steps the
   deterministic actor is judged on the held-out seeds (judging and saving time not counted).
 - DSRL-NA (noise aliasing, `dsrl_na.py`): the same SAC settings and budget, but the noise critic
-  is distilled from an action-space critic that learns by TD over the executed chunks (NA).
+  is distilled from an action-space critic that learns by TD over the executed chunks (NA); it
+  trains `--na-minutes` (default: `--minutes`).
 - CEM and CMA-ES, the default search (goldenticket, paper defaults), at budgets BUDGETS,
   each search timed from scratch; its top ticket judged on the same held-out seeds.
 
 Resumable: each pair's folder `--runs`/<task> keeps, per DSRL variant (a sub-folder), its model
 and replay buffer, the env's counters and the curve so far (rewritten after every checkpoint),
 and the base's success and every search point. A rerun continues until each variant has trained
-`--minutes` in total, or only reports if they have. A resumed run is not bit-identical to an
+its minutes in total, or only reports if they have. A resumed run is not bit-identical to an
 uninterrupted one (SB3 reseeds its random generators on load and the episode in progress starts
 over), but its curve continues.
 
@@ -280,12 +281,13 @@ def race(dsrl: list[dict], search: list[dict], n: int) -> list[dict]:
     return rows
 
 
-def run_pair(task_name: str, minutes: float, folder: Path, workers: int) -> dict:
-    """One pair's base, DSRL and search curves (resumed from and kept in `folder`) and verdicts."""
+def run_pair(task_name: str, minutes: dict[str, float], folder: Path, workers: int) -> dict:
+    """One pair's base, DSRL and search curves (resumed from and kept in `folder`) and verdicts;
+    `minutes`: each DSRL variant's training time."""
     check_settings(folder, workers)
     base = cached(folder / "base.json", lambda: heldout_success(load_policy(f"metaworld/{task_name}/flow"),
                                                                 get_task(f"metaworld/{task_name}")))
-    result = {"base": base} | {variant: dsrl_curve(task_name, variant, minutes, folder / variant)
+    result = {"base": base} | {variant: dsrl_curve(task_name, variant, minutes[variant], folder / variant)
                                for variant in VARIANTS}
     result |= {method: search_curve(task_name, method, workers, folder) for method in SEARCHES}
     return result | {"plateaued": {variant: plateaued(result[variant], HELDOUT) for variant in VARIANTS},
@@ -299,7 +301,7 @@ def span(values: list[float | None], form: str) -> str:
     return estimate if low == estimate == high else f"{estimate} ({low} to {high})"
 
 
-def markdown(results: dict, minutes: float) -> str:
+def markdown(results: dict, minutes: dict[str, float]) -> str:
     def cells(curve):
         return "<br>".join(f"{p['budget']}: {p['seconds']:.0f} s, {p['env_steps']}, {p['success']:.0%}"
                            for p in curve)
@@ -308,8 +310,9 @@ def markdown(results: dict, minutes: float) -> str:
         top = max(curve, key=lambda p: p["success"])
         return f"{top['success']:.0%} ({top['seconds']:.0f} s, {top['sac_steps']} steps, {top['env_steps']})"
 
-    lines = [f"Regenerate: `python benchmarks/dsrl.py --minutes {minutes:g} --pairs {' '.join(results)}` "
-             "(resumes from benchmarks/runs/dsrl/).", "",
+    na = "" if minutes["dsrl_na"] == minutes["dsrl_sac"] else f" --na-minutes {minutes['dsrl_na']:g}"
+    lines = [f"Regenerate: `python benchmarks/dsrl.py --minutes {minutes['dsrl_sac']:g}{na} --pairs "
+             f"{' '.join(results)}` (resumes from benchmarks/runs/dsrl/).", "",
              "| task (flow policy) | base | " + " | ".join(
                  f"{name} best (at s, SAC steps, env steps) | plateaued" for name in VARIANTS.values())
              + " | " + " | ".join(f"{m.upper()}: budget, s, env steps, success" for m in SEARCHES) + " |",
@@ -327,8 +330,9 @@ def markdown(results: dict, minutes: float) -> str:
                     seconds = (span(row[side], "{:.0f} s") for side in ("dsrl_seconds", "search_seconds"))
                     lines.append(f"| {task} | {name} | {method.upper()} | {owner}, {row['target']:.0%} | "
                                  + " | ".join(seconds) + f" | {span(row['speedup'], '{:.2g}x')} |")
-    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; each DSRL variant trained {minutes:g} min "
-              f"per pair, judged every {CHECKPOINT} SAC steps; each search timed from scratch at each "
+    trained = " and ".join(f"{name} {minutes[variant]:g} min" for variant, name in VARIANTS.items())
+    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; trained per pair: {trained}, judged every "
+              f"{CHECKPOINT} SAC steps; each search timed from scratch at each "
               "budget. Plateaued: with 3 checkpoints or more, the best success before the last third of them "
               "is inside the 95% Wilson interval of the overall best (the last third gained nothing beyond "
               "sampling noise). Seconds to a target: the owner's are those of its best checkpoint or budget; "
@@ -356,7 +360,9 @@ def plot(results: dict, path: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=60.0,
-                        help="SAC training time per pair, in total over resumed runs")
+                        help="each DSRL variant's training time per pair, in total over resumed runs")
+    parser.add_argument("--na-minutes", type=float,
+                        help="DSRL-NA's training time per pair instead (default: --minutes)")
     parser.add_argument("--pairs", nargs="+", choices=PAIRS, default=PAIRS[:2], metavar="TASK",
                         help=f"tasks to run, of: {', '.join(PAIRS)} (default: the first two)")
     parser.add_argument("--runs", type=Path, default=RUNS, help="folder of the pairs' resumable runs")
@@ -364,18 +370,20 @@ def main() -> None:
                         help="SAC's torch threads and the searches' workers (default: 1)")
     parser.add_argument("--no-write", action="store_true", help="print the table, write no results files")
     args = parser.parse_args()
-    if args.minutes <= 0 or args.workers < 1:
-        parser.error("--minutes must be > 0 and --workers >= 1")
+    na = args.minutes if args.na_minutes is None else args.na_minutes
+    minutes = {"dsrl_sac": args.minutes, "dsrl_na": na}
+    if min(minutes.values()) <= 0 or args.workers < 1:
+        parser.error("--minutes and --na-minutes must be > 0 and --workers >= 1")
     torch.set_num_threads(args.workers)
     try:
-        results = {task: run_pair(task, args.minutes, args.runs / task, args.workers) for task in args.pairs}
+        results = {task: run_pair(task, minutes, args.runs / task, args.workers) for task in args.pairs}
     except UserError as exc:
         parser.error(str(exc))
-    text = markdown(results, args.minutes)
+    text = markdown(results, minutes)
     if args.no_write:
         print(text)
         return
-    record = {"settings": settings(args.workers) | {"budgets": BUDGETS, "minutes": args.minutes},
+    record = {"settings": settings(args.workers) | {"budgets": BUDGETS, "minutes": minutes},
               "results": results}
     write_results("dsrl", record, text, lambda path: plot(results, path))
 

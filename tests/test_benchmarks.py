@@ -183,7 +183,10 @@ def test_dsrl_race_times_each_side_to_the_others_best_with_wilson_bounds():
     pair = {"base": 0.5, "plateaued": {"dsrl_sac": False, "dsrl_na": True}} | curves | dict.fromkeys(
         dsrl.SEARCHES, search)
     races = {v: {m: dsrl.race(curve, search, n=100) for m in dsrl.SEARCHES} for v, curve in curves.items()}
-    table = dsrl.markdown({"reach-v3": pair | {"race": races}}, minutes=60)
+    table = dsrl.markdown({"reach-v3": pair | {"race": races}},
+                          minutes={"dsrl_sac": 60, "dsrl_na": 90})
+    assert "--minutes 60 --na-minutes 90 --pairs reach-v3" in table
+    assert "trained per pair: DSRL-SAC 60 min and DSRL-NA 90 min" in table
     assert "| 70% (300 s, 30 steps, 3000) | no | 40% (100 s, 10 steps, 1000) | yes |" in table
     assert "| DSRL-SAC | CMA-ES | DSRL-SAC, 70% | 300 s | not reached (10 s to not reached) | " \
            "not reached (not reached to 30x) |" in table
