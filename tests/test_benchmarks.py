@@ -244,10 +244,12 @@ def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, m
     minutes = min(curve[-1]["seconds"] for curve in curves.values()) / 60 * 0.999  # both trained longer
     monkeypatch.setattr(dsrl, "ActorNoise", interrupt)  # trained long enough: neither trains nor judges
     monkeypatch.setattr(dsrl, "write_results", interrupt)
-    monkeypatch.setattr(sys, "argv", ["dsrl.py", "--minutes", str(minutes), "--pairs", "reach-v3", "--runs",
-                                      str(tmp_path), "--workers", "1", "--no-write"])
+    monkeypatch.setattr(sys, "argv", ["dsrl.py", "--minutes", str(minutes), "--na-minutes", str(minutes / 2),
+                                      "--pairs", "reach-v3", "--runs", str(tmp_path), "--workers", "1",
+                                      "--no-write"])
     dsrl.main()
     for variant, curve in curves.items():
         assert json.loads((folder / variant / "dsrl.json").read_text())["curve"] == curve
     assert {p.name for p in folder.glob("*-20.json")} == {f"{m}-20.json" for m in dsrl.SEARCHES}
-    assert "| reach-v3 | " in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "| reach-v3 | " in said and f"and DSRL-NA {minutes / 2:g} min" in said
