@@ -12,10 +12,11 @@ search or selection saw. Resumable: each method's run store lives in `--runs`/<m
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
+
+from results_files import write_results
 
 import goldenticket
 from goldenticket.config import SearchConfig
@@ -39,19 +40,17 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     results = {method: run(method, args) for method in METHODS}
-    (HERE / "results" / "fetch_push.json").write_text(json.dumps(results, indent=2) + "\n")
-    (HERE / "results" / "fetch_push.md").write_text(report(results))
-    print(report(results))
+    write_results("fetch_push", results, report(results))
 
 
 def run(method: str, args: argparse.Namespace) -> dict:
     """One search with `method` and its best ticket's fresh check, timed."""
-    start = time.perf_counter()
-    summary = goldenticket.search(fetch_push.make_policy(), fetch_push.make_env, args.runs / method,
+    start, policy = time.perf_counter(), fetch_push.make_policy()
+    summary = goldenticket.search(policy, fetch_push.make_env, args.runs / method,
                                   method=method, budget=args.budget, search_seeds=args.search_seeds,
                                   validation_seeds=args.validation_seeds, workers=args.workers)
     searched = time.perf_counter()
-    fresh = goldenticket.evaluate(fetch_push.make_policy(), fetch_push.make_env, [summary.best.path], FRESH,
+    fresh = goldenticket.evaluate(policy, fetch_push.make_env, [summary.best.path], FRESH,
                                   workers=args.workers)
     done = time.perf_counter()
     recorded = summary.to_dict()
