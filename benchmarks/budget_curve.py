@@ -24,6 +24,7 @@ from results_files import RESULTS, write_results
 from goldenticket.files import write_atomic
 
 ROWS = RESULTS / "budget_curve"
+SEARCH = {"search_seeds": SETTINGS["search_seeds"], "subspace": "full"}  # what a point may change
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
@@ -44,89 +45,143 @@ def weak_pairs() -> list[tuple[str, str]]:
     return [(f"metaworld/{r['task']}", f"metaworld/{r['task']}/{r['policy']}") for r in weak_rows()]
 
 
-def budget_rows(budget: int, workers: int) -> list[dict]:
-    """Every weak pair's row at `budget`: read back where kept, else searched, judged and kept."""
-    rows, todo = [], weak_pairs()
+def folder_name(budget: int, search: dict) -> str:
+    """Where a point's rows are kept: its budget, then what it changes of the default search."""
+    changed = [f"seeds{search['search_seeds']}" if search["search_seeds"] != SEARCH["search_seeds"] else "",
+               "" if search["subspace"] == SEARCH["subspace"] else search["subspace"]]
+    return "-".join([str(budget), *filter(None, changed)])
+
+
+def point_of(name: str) -> tuple[int, dict]:
+    """The budget and search of a folder named by `folder_name`."""
+    budget, *changed = name.split("-")
+    search = dict(SEARCH)
+    for part in changed:
+        search |= {"search_seeds": int(part.removeprefix("seeds"))} if part.startswith("seeds") else {
+            "subspace": part}
+    return int(budget), search
+
+
+def search_label(search: dict) -> str:
+    tiled = "" if search["subspace"] == "full" else f", {search['subspace']}"
+    return f"{search['search_seeds']} seeds{tiled}"
+
+
+def budget_rows(budget: int, search: dict, workers: int) -> list[dict]:
+    """Every weak pair's row at `budget` with `search`: read back where kept, else searched, judged
+    and kept."""
+    rows, todo, name = [], weak_pairs(), folder_name(budget, search)
     for i, (task, policy) in enumerate(todo, 1):
-        path = run_folder(ROWS / str(budget), policy).with_suffix(".json")
+        path = run_folder(ROWS / name, policy).with_suffix(".json")
         if not path.exists():
-            print(f"[budget {budget}, {i}/{len(todo)}] {policy}", flush=True)
+            print(f"[budget {budget}, {search_label(search)}, {i}/{len(todo)}] {policy}", flush=True)
             start = time.perf_counter()
-            row = table_row(run_pair(task, policy, HERE / "runs" / f"budget-{budget}", workers, budget))
-            write_atomic(path, json.dumps(row | {"wall_time_s": round(time.perf_counter() - start)},
-                                          indent=2) + "\n")
+            summary = run_pair(task, policy, HERE / "runs" / f"budget-{name}", workers, budget=budget,
+                               **search)
+            wall = {"wall_time_s": round(time.perf_counter() - start)}
+            write_atomic(path, json.dumps(table_row(summary) | wall, indent=2) + "\n")
         rows.append(json.loads(path.read_text()))
     return rows
 
 
-def kept_budgets() -> list[int]:
-    """The budgets whose every weak pair has a kept row, with the default's."""
+def kept_points() -> list[tuple[int, dict]]:
+    """(budget, search) of every point whose weak pairs all have a kept row, with the default's;
+    the default search first, then by search and budget."""
     pairs, folders = len(weak_pairs()), ROWS.iterdir() if ROWS.exists() else []
-    full = [int(d.name) for d in folders if len(list(d.glob("*.json"))) == pairs]
-    return sorted({SETTINGS["budget"], *full})
+    full = [point_of(d.name) for d in folders if len(list(d.glob("*.json"))) == pairs]
+    points = {folder_name(b, s): (b, s) for b, s in [(SETTINGS["budget"], SEARCH), *full]}
+    return sorted(points.values(),
+                  key=lambda p: (p[1] != SEARCH, p[1]["subspace"], p[1]["search_seeds"], p[0]))
 
 
 def curve() -> list[dict]:
-    """Per budget: its targets and episodes (the default budget's from the existence table)."""
+    """Per point: its targets and episodes (the default's from the existence table)."""
     points = []
-    for budget in kept_budgets():
-        rows = weak_rows() if budget == SETTINGS["budget"] else [
-            json.loads(p.read_text()) for p in sorted((ROWS / str(budget)).glob("*.json"))]
-        points.append({"budget": budget} | target_summary(rows))
+    for budget, search in kept_points():
+        rows = weak_rows() if (budget, search) == (SETTINGS["budget"], SEARCH) else [
+            json.loads(p.read_text()) for p in sorted((ROWS / folder_name(budget, search)).glob("*.json"))]
+        points.append({"budget": budget} | search | target_summary(rows))
     return points
 
 
+def searches(points: list[dict]) -> list[dict]:
+    """The distinct searches of `points`, in their order."""
+    return list({search_label(p): {k: p[k] for k in SEARCH} for p in points}.values())
+
+
+def command(search: dict, points: list[dict]) -> str:
+    budgets = [p["budget"] for p in points if {k: p[k] for k in SEARCH} == search
+               and (p["budget"], search) != (SETTINGS["budget"], SEARCH)]
+    flags = "".join(f" --{k.replace('_', '-')} {search[k]}" for k in SEARCH if search[k] != SEARCH[k])
+    return f"`python benchmarks/budget_curve.py --budgets {' '.join(map(str, budgets))}{flags}`"
+
+
 def markdown(points: list[dict]) -> str:
-    lines = [f"Regenerate: `python benchmarks/budget_curve.py --budgets "
-             f"{' '.join(str(p['budget']) for p in points if p['budget'] != SETTINGS['budget'])}` "
-             f"(the {SETTINGS['budget']}-episode point is the existence table).", "",
-             "| search budget | search + validation episodes, mean (max) | seeds | significant vs base "
-             "| vs zero | mean failure reduction | mean gain | below zero | below base |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["Regenerate: " + ", ".join(command(s, points) for s in searches(points)) +
+             f" (the {SETTINGS['budget']}-episode point with {search_label(SEARCH)} is the existence "
+             "table).", "",
+             "| search budget | search | search + validation episodes, mean (max) | seeds | significant "
+             "vs base | vs zero | mean failure reduction | mean gain | below zero | below base |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for p in points:
         for key, said in RANGES.items():
             t = p["targets"][key]
-            lines.append(f"| {p['budget']} | {p['episodes']['mean']:.0f} ({p['episodes']['max']}) | {said} | "
-                         f"{t['vs_base']:.0%} | {t['vs_zero']:.0%} | {t['failure_reduction']:.1%} | "
-                         f"{100 * t['mean_gain']:+.1f} | {t['below_zero']} | {t['below_base']} |")
-    lines.append("| target | <= 1250 | both | >= 90% | | >= 55% | >= +18 | 0 | 0 |")
+            lines.append(f"| {p['budget']} | {search_label(p)} | {p['episodes']['mean']:.0f} "
+                         f"({p['episodes']['max']}) | {said} | {t['vs_base']:.0%} | {t['vs_zero']:.0%} | "
+                         f"{t['failure_reduction']:.1%} | {100 * t['mean_gain']:+.1f} | {t['below_zero']} | "
+                         f"{t['below_base']} |")
+    lines.append("| target | | <= 1250 | both | >= 90% | | >= 55% | >= +18 | 0 | 0 |")
     lines += ["", f"Over the {points[0]['targets']['pairs']} pairs whose base succeeds at most "
               f"{WEAK_BASE:.0%}; settings otherwise the `search` defaults ({SETTINGS['method']}, "
               f"{SETTINGS['validation_seeds']} validation seeds, top {SETTINGS['top_k']} judged on "
-              f"{SETTINGS['heldout']} held-out seeds, the zero ticket beside them); each pair's best ticket "
-              "judged again on two ranges of 200 fresh held-out seeds. Significance: one-sided exact paired "
-              "test, p < 0.05."]
+              f"{SETTINGS['heldout']} held-out seeds, the zero ticket beside them); search: the search "
+              "seeds and the sub-space searched (full: every entry of the ticket; tiled: one action-sized "
+              "vector repeated over the horizon); each pair's best ticket judged again on two ranges of 200 "
+              "fresh held-out seeds. Significance: one-sided exact paired test, p < 0.05."]
     return "\n".join(lines) + "\n"
 
 
 def plot(points: list[dict], path) -> None:
     from matplotlib.figure import Figure
+    from matplotlib.ticker import NullFormatter, PercentFormatter, ScalarFormatter
 
-    fig = Figure(figsize=(13, 3.8))
+    fig = Figure(figsize=(13, 4.2))
     for ax, (metric, target) in zip(fig.subplots(1, len(TARGETS)), TARGETS.items(), strict=True):
-        for key, said in RANGES.items():
-            ax.plot([p["episodes"]["mean"] for p in points], [p["targets"][key][metric] for p in points],
-                    "-o", label=said)
-        ax.axhline(target, color="tab:red", ls="--", label=f"target {target:.0%}")
+        for color, search in enumerate(searches(points)):
+            mine = [p for p in points if {k: p[k] for k in SEARCH} == search]
+            for (key, said), style in zip(RANGES.items(), ("-o", "--s"), strict=True):
+                ax.plot([p["episodes"]["mean"] for p in mine], [p["targets"][key][metric] for p in mine],
+                        style, color=f"C{color}", label=f"{search_label(search)}, {said}")
+        ax.axhline(target, color="tab:red", ls="--", label="target")
         ax.axvline(1250, color="0.6", ls=":", label="1250 episodes")
-        ax.set(xlabel="search + validation episodes per pair (mean)", title=TITLES[metric])
-        ax.legend(fontsize="small")
-    fig.tight_layout()
+        ax.set(xlabel="search + validation episodes per pair (mean, log scale)", xscale="log",
+               title=f"{TITLES[metric]} (target {target:.0%})", xticks=[500, 1000, 2000, 4000, 8000])
+        ax.xaxis.set_major_formatter(ScalarFormatter())
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.yaxis.set_major_formatter(PercentFormatter(1.0, decimals=0))
+    fig.legend(*fig.axes[0].get_legend_handles_labels(), loc="lower center", ncol=4, fontsize="small")
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(path, dpi=90)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--budgets", nargs="+", type=int, default=[2000], help="search budgets to add")
+    parser.add_argument("--search-seeds", type=int, default=SEARCH["search_seeds"],
+                        help="initial states each ticket is searched on")
+    parser.add_argument("--subspace", choices=("full", "tiled"), default=SEARCH["subspace"],
+                        help="what the search varies: every entry, or one action-sized vector repeated "
+                        "over the horizon")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--plot-only", action="store_true", help="redraw budget_curve.png; run no episode")
     args = parser.parse_args()
-    if min(args.budgets) < 1 or args.workers < 1:
-        parser.error("--budgets and --workers must be >= 1")
+    if min(args.budgets) < 1 or args.workers < 1 or args.search_seeds < 1:
+        parser.error("--budgets, --search-seeds and --workers must be >= 1")
+    search = {"search_seeds": args.search_seeds, "subspace": args.subspace}
     if not args.plot_only:
         for budget in args.budgets:
-            if budget != SETTINGS["budget"]:
-                budget_rows(budget, args.workers)
+            if (budget, search) != (SETTINGS["budget"], SEARCH):
+                budget_rows(budget, search, args.workers)
     points = curve()
     record = {"settings": SETTINGS | {"weak_base": WEAK_BASE, "fresh_ranges": FRESH_RANGES}, "points": points}
     if args.plot_only:

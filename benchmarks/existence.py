@@ -52,11 +52,11 @@ def run_folder(runs: Path, policy: str) -> Path:
     return runs / policy.removeprefix("metaworld/").replace("/", "_")
 
 
-def run_pair(task: str, policy: str, runs: Path, workers: int, budget: int = SETTINGS["budget"]) -> dict:
-    """Search (`budget` episodes) and judge one pair; its best ticket is then re-judged on fresh
-    held-out seeds."""
+def run_pair(task: str, policy: str, runs: Path, workers: int, **changed) -> dict:
+    """Search and judge one pair with SETTINGS, or with the `changed` ones (e.g. a budget); its best
+    ticket is then re-judged on fresh held-out seeds."""
     out = run_folder(runs, policy)
-    cfg = SearchConfig(policy, task, workers=workers, **SETTINGS | {"budget": budget})
+    cfg = SearchConfig(policy, task, workers=workers, **SETTINGS | changed)
     summary = find_golden_tickets(cfg, out).to_dict()
     with RunStore(out / "run.sqlite") as store:
         summary["validation_episodes"] = len(store.episodes(seed_set="validation"))

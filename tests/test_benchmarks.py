@@ -63,7 +63,8 @@ def test_budget_curve_adds_kept_budgets_to_the_existence_tables_point(tmp_path, 
     assert budget_curve.weak_pairs() == [("metaworld/t", "metaworld/t/flow")] * 2
     (tmp_path / "2000").mkdir()
     (tmp_path / "2000" / "a.json").write_text(json.dumps(_row(0.5, 0.6, 0.9, 0.001, 0.01, spent=2400)))
-    assert budget_curve.kept_budgets() == [850]  # one of two pairs kept: not a point yet
+    kept = [budget for budget, _ in budget_curve.kept_points()]
+    assert kept == [850]  # one of two pairs kept: not a point yet
     (tmp_path / "2000" / "b.json").write_text(json.dumps(_row(0.3, 0.3, 0.8, 0.001, 0.01, spent=2400)))
     points = budget_curve.curve()
     assert [p["budget"] for p in points] == [850, 2000]
@@ -73,7 +74,27 @@ def test_budget_curve_adds_kept_budgets_to_the_existence_tables_point(tmp_path, 
         "below_zero": 0, "below_base": 0}
     assert points[1]["episodes"] == {"mean": 2400, "max": 2400}
     table = budget_curve.markdown(points)
-    assert "--budgets 2000`" in table and "| 2000 | 2400 (2400) | fresh seeds | 100% | 100% |" in table
+    assert "--budgets 2000`" in table
+    assert "| 2000 | 20 seeds | 2400 (2400) | fresh seeds | 100% | 100% |" in table
+
+
+def test_budget_curve_keeps_a_changed_search_apart_from_the_default(tmp_path, monkeypatch):
+    weak = [_row(0.5, 0.6, 0.7, 0.001, 0.04), _row(0.3, 0.3, 0.4, 0.01, 0.2)]
+    monkeypatch.setattr(budget_curve, "existence_rows", lambda: weak)
+    monkeypatch.setattr(budget_curve, "ROWS", tmp_path)
+    tiled = {"search_seeds": 40, "subspace": "tiled"}
+    name = budget_curve.folder_name(850, tiled)
+    assert name == "850-seeds40-tiled" and budget_curve.point_of(name) == (850, tiled)
+    (tmp_path / name).mkdir()
+    row = json.dumps(_row(0.5, 0.6, 0.9, 0.001, 0.01, spent=1250))
+    for pair in "ab":
+        (tmp_path / name / f"{pair}.json").write_text(row)
+    points = budget_curve.curve()
+    assert [(p["budget"], p["search_seeds"], p["subspace"]) for p in points] == [
+        (850, 20, "full"), (850, 40, "tiled")]
+    table = budget_curve.markdown(points)
+    assert "`python benchmarks/budget_curve.py --budgets 850 --search-seeds 40 --subspace tiled`" in table
+    assert "| 850 | 40 seeds, tiled | 1250 (1250) | fresh seeds | 100% |" in table
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():
