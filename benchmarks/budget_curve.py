@@ -145,7 +145,7 @@ def plot(points: list[dict], path) -> None:
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter, PercentFormatter, ScalarFormatter
 
-    fig = Figure(figsize=(13, 4.2))
+    fig = Figure(figsize=(13, 4.8))
     for ax, (metric, target) in zip(fig.subplots(1, len(TARGETS)), TARGETS.items(), strict=True):
         for color, search in enumerate(searches(points)):
             mine = [p for p in points if {k: p[k] for k in SEARCH} == search]
@@ -160,7 +160,7 @@ def plot(points: list[dict], path) -> None:
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.yaxis.set_major_formatter(PercentFormatter(1.0, decimals=0))
     fig.legend(*fig.axes[0].get_legend_handles_labels(), loc="lower center", ncol=4, fontsize="small")
-    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    fig.tight_layout(rect=(0, 0.17, 1, 1))
     fig.savefig(path, dpi=90)
 
 

@@ -65,3 +65,22 @@ def test_given_tickets_need_validation_seeds(tmp_path, capsys):
     assert capsys.readouterr().err == ("goldenticket: error: --ticket: a given ticket runs on the validation "
                                        "seeds beside the search's best, so it needs --validation-seeds > 0\n")
     assert not (tmp_path / "o").exists()
+
+
+def test_the_zero_ticket_ranks_before_a_ticket_it_ties(tmp_path):
+    from goldenticket.evaluation import Judged
+    from goldenticket.results import ZERO_SOURCE
+    from goldenticket.rollout import EpisodeResult
+    from goldenticket.workflow import _save_ranked
+
+    def judged(successes: str, p: float) -> Judged:
+        return Judged("arm", [EpisodeResult(s, c == "1", float(c == "1"), 10, 0.0)
+                              for s, c in enumerate(successes)], p_vs_base=p)
+
+    zero = Ticket(zero_ticket((4, 2)).noise, {"source": ZERO_SOURCE, "search_score": None})
+    tie, worse = (Ticket(np.full((4, 2), w, np.float32), {"search_score": 1.0}) for w in (0.5, -0.5))
+    rows = {zero.id: judged("1100", 0.3), tie.id: judged("1010", 0.1), worse.id: judged("1000", 0.6)}
+    ranked = _save_ranked([tie, worse, zero], rows, tmp_path, (0, 3), {})
+    assert [t.id for t in ranked] == [zero.id, tie.id, worse.id]  # a lower p does not break the tie
+    rows[tie.id] = judged("1110", 0.1)
+    assert _save_ranked([tie, worse, zero], rows, tmp_path, (0, 3), {})[0].id == tie.id

@@ -226,6 +226,14 @@ def test_tickets_written_before_p_vs_base_list_the_same(search_run):
     assert ticket_table([old]) == ticket_table([ticket])
 
 
+def test_a_shipped_zero_ticket_lists_without_a_search_score(search_run):
+    from goldenticket.report import ticket_table
+
+    ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"])
+    zero = SimpleNamespace(id="000000000000", metadata=ticket.metadata | {"search_score": None})
+    assert ticket_table([zero]).splitlines()[1].split()[2] == "-"
+
+
 def test_a_ticket_named_twice_is_judged_once(search_run, policy_dir, tmp_path, capsys):
     path = json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"]
     capsys.readouterr()

@@ -100,13 +100,14 @@ def policy_table(cards: list[dict]) -> str:
 
 
 def ticket_table(tickets: list) -> str:
-    """One line per shipped ticket: policy, id, search score, held-out success and its seeds, and
-    success on fresh held-out seeds where measured."""
+    """One line per shipped ticket: policy, id, search score (- for a ticket the search did not
+    score, such as the zero ticket), held-out success and its seeds, and success on fresh held-out
+    seeds where measured."""
     rows = []
     for t in tickets:
-        held = t.metadata["heldout"]
+        held, score = t.metadata["heldout"], t.metadata["search_score"]
         fresh = t.metadata.get("fresh")
-        rows.append((t.metadata["policy"], t.id, f"{t.metadata['search_score']:.0%}", rate_text(held, 6),
+        rows.append((t.metadata["policy"], t.id, "-" if score is None else f"{score:.0%}", rate_text(held, 6),
                      f"{p_vs_base(held):.2g}", f"{held['seeds'][0]}:{held['seeds'][1] + 1}",
                      rate_text(fresh, 6) if fresh else "-"))
     return _columns(("policy", "ticket", "search", "held-out success", "p vs base", "seeds",

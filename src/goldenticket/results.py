@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from goldenticket.evaluation import ZERO_MARK, MultitaskVerdict, VerdictRow, p_value_note, to_dicts
 from goldenticket.tickets import Ticket
 
+ZERO_SOURCE = "zero ticket"  # a FoundTicket's source when it is the zero ticket (w = 0)
+
 
 def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
     """Verdict rows as people read them: base, zero ticket, then each ticket (`tickets` by id, or by
@@ -26,18 +28,18 @@ class FoundTicket:
     search_score: float | None
     heldout: VerdictRow
     validation_score: float | None = None
-    source: str | None = None  # "zero ticket" or "given: <ticket>"
+    source: str | None = None  # ZERO_SOURCE or "given: <ticket>"
     ticket: Ticket | None = field(default=None, repr=False, compare=False)
 
     @property
     def name(self) -> str:
         """The id, and what it is when it is the zero ticket."""
-        return self.id + (" (the zero ticket, w = 0)" if self.source == "zero ticket" else "")
+        return self.id + (" (the zero ticket, w = 0)" if self.source == ZERO_SOURCE else "")
 
     @property
     def label(self) -> str:
         """Its row's label in the verdict table (`arm_rows`)."""
-        return self.id + (ZERO_MARK if self.source == "zero ticket" else "")
+        return self.id + (ZERO_MARK if self.source == ZERO_SOURCE else "")
 
     def to_dict(self) -> dict:
         validation = {k: v for k, v in (("validation_score", self.validation_score), ("source", self.source))

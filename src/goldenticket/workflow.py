@@ -27,7 +27,7 @@ from goldenticket.files import write_atomic
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.plots import arms_png, search_png, tasks_png
 from goldenticket.policies import NoisePolicy, find_ticket, for_task, identity, load_policy, policy_label
-from goldenticket.results import FoundTicket, MultitaskSummary, ParetoFront, SearchRun, Summary
+from goldenticket.results import ZERO_SOURCE, FoundTicket, MultitaskSummary, ParetoFront, SearchRun, Summary
 from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
 from goldenticket.studies.pareto import pareto_study
@@ -267,7 +267,7 @@ def _other_candidates(cfg: SearchConfig, names: Names, shape: tuple[int, int],
                       tasks: list[str]) -> list[Ticket]:
     """Tickets that enter validation beside the search's best: the zero ticket (first) and the
     tickets `cfg.tickets` names (files or bundled ids; any policy's or task's, if the shape fits)."""
-    sources = {"zero ticket": zero_ticket(shape).noise} | {
+    sources = {ZERO_SOURCE: zero_ticket(shape).noise} | {
         f"given: {ref}": Ticket.load(find_ticket(ref), expected_shape=shape).noise for ref in cfg.tickets}
     tickets = [Ticket(noise, _provenance(names, shape, tasks, {"source": source, "search_score": None}))
                for source, noise in sources.items()]
@@ -295,8 +295,10 @@ def _provenance(names: Names, shape: tuple[int, int], tasks: list[str], how: dic
 def _save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, span: tuple[int, int],
                  fronts: dict[str, dict]) -> tuple[FoundTicket, ...]:
     """Save each ticket with its held-out result (and its place on the Pareto front, `fronts` by
-    ticket id, if it has one); best first (success, then p)."""
-    ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate, judged[t.id].p_vs_base))
+    ticket id, if it has one); best first: by success, the zero ticket before any ticket it ties
+    (it needs no search, so a tie is no evidence for the other), then by p."""
+    ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate,
+                                            t.metadata.get("source") != ZERO_SOURCE, judged[t.id].p_vs_base))
     found = []
     for t in ranked:
         row = judged[t.id].row()
