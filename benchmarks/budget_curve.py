@@ -1,14 +1,17 @@
 """The budget curve: what more search episodes buy on the pairs with a weak base.
 
     python benchmarks/budget_curve.py [--budgets 2000 ...]     # resumable, pair by pair
+    python benchmarks/budget_curve.py --budgets 850 --subspace tiled [--search-seeds 40]
     python benchmarks/budget_curve.py --plot-only              # redraw budget_curve.png
 
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
 searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
-ticket judged again, with base and zero ticket, on the same two fresh ranges. The point at the
-default budget is the existence table's own. Each pair's row is kept in
-benchmarks/results/budget_curve/<budget>/ once judged, so a run resumes pair by pair, on another
-machine too; its run folder under benchmarks/runs/budget-<budget>/ resumes a pair's episodes.
+ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`
+and `--subspace` change the search at those budgets (a point is a budget and a search). The point
+at the default budget and search is the existence table's own. Each pair's row is kept in
+benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget, then -seedsN and
+-tiled where they differ from the defaults), so a run resumes pair by pair, on another machine
+too; its run folder under benchmarks/runs/budget-<point>/ resumes a pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
 """
 
@@ -62,9 +65,14 @@ def point_of(name: str) -> tuple[int, dict]:
     return int(budget), search
 
 
+def search_of(point: dict) -> dict:
+    """What a point's search changes: its entries of SEARCH."""
+    return {k: point[k] for k in SEARCH}
+
+
 def search_label(search: dict) -> str:
-    tiled = "" if search["subspace"] == "full" else f", {search['subspace']}"
-    return f"{search['search_seeds']} seeds{tiled}"
+    space = "" if search["subspace"] == "full" else f", {search['subspace']}"
+    return f"{search['search_seeds']} seeds{space}"
 
 
 def budget_rows(budget: int, search: dict, workers: int) -> list[dict]:
@@ -106,11 +114,11 @@ def curve() -> list[dict]:
 
 def searches(points: list[dict]) -> list[dict]:
     """The distinct searches of `points`, in their order."""
-    return list({search_label(p): {k: p[k] for k in SEARCH} for p in points}.values())
+    return list({search_label(p): search_of(p) for p in points}.values())
 
 
 def command(search: dict, points: list[dict]) -> str:
-    budgets = [p["budget"] for p in points if {k: p[k] for k in SEARCH} == search
+    budgets = [p["budget"] for p in points if search_of(p) == search
                and (p["budget"], search) != (SETTINGS["budget"], SEARCH)]
     flags = "".join(f" --{k.replace('_', '-')} {search[k]}" for k in SEARCH if search[k] != SEARCH[k])
     return f"`python benchmarks/budget_curve.py --budgets {' '.join(map(str, budgets))}{flags}`"
@@ -148,7 +156,7 @@ def plot(points: list[dict], path) -> None:
     fig = Figure(figsize=(13, 4.8))
     for ax, (metric, target) in zip(fig.subplots(1, len(TARGETS)), TARGETS.items(), strict=True):
         for color, search in enumerate(searches(points)):
-            mine = [p for p in points if {k: p[k] for k in SEARCH} == search]
+            mine = [p for p in points if search_of(p) == search]
             for (key, said), style in zip(RANGES.items(), ("-o", "--s"), strict=True):
                 ax.plot([p["episodes"]["mean"] for p in mine], [p["targets"][key][metric] for p in mine],
                         style, color=f"C{color}", label=f"{search_label(search)}, {said}")

@@ -117,7 +117,7 @@ def test_verdict_without_zero_ticket_or_best_draws_what_it_has(tmp_path):
 def test_search_picture_marks_validated_judged_and_chosen_tickets_and_the_base(tmp_path, drawn):
     scores = [0.2, 0.9, 0.5, 0.7, 0.6, 0.8]
     plots.search_png(scores, [5] * 6, tmp_path / "s.png", "title", validated=[1, 3, 5], judged=[3, 1],
-                     base=(0.4, "held-out seeds 1000000:1000010"))
+                     chosen=3, base=(0.4, "held-out seeds 1000000:1000010"))
     ax = drawn[0].axes[0]
     assert ax.get_ylabel().startswith("search score")
     assert _legend(ax) == ["ticket, 5 episodes", "best so far (5 episodes)",
@@ -149,7 +149,8 @@ def test_search_marks_the_tickets_the_run_validated_and_judged(tmp_path, drawn, 
     assert len(_points(search, "sent to validation")) == 3 * cfg.top_k
     assert [y for _, y in _points(search, "judged on held-out seeds")] == [
         t.search_score for t in summary.tickets if t.source != "zero ticket"]  # the zero ticket: no search
-    assert [y for _, y in _points(search, "chosen ticket (best held-out success)")] == [best.search_score]
+    chosen = [] if best.source == "zero ticket" else [best.search_score]  # the zero ticket: not searched
+    assert [y for _, y in _points(search, "chosen ticket (best held-out success)")] == chosen
     base_line = next(line for line in search.lines if line.get_label().startswith("base policy"))
     assert base_line.get_ydata()[0] == summary.base.rate.success_rate  # objective "success"
 

@@ -52,12 +52,13 @@ def arms_png(rows: dict[str, dict], path: Path, title: str, what: str = "held-ou
 
 
 def search_png(scores: list[float], episodes: list[int], path: Path, title: str, *,
-               validated: Sequence[int] = (), judged: Sequence[int] = (),
+               validated: Sequence[int] = (), judged: Sequence[int] = (), chosen: int | None = None,
                base: tuple[float, str] | None = None) -> Path:
     """Each ticket's search score (mean objective on the search seeds) in the order the search
     first tried it, hollow if it ran fewer episodes than the most, and the best so far among
     those with the most. Rings mark the tickets (indices) `validated` and `judged` on held-out
-    seeds, a star the first judged (the chosen one); `base` is (score, where it was measured)."""
+    seeds, a star the `chosen` one (the delivered ticket, if the search found it); `base` is (score,
+    where it was measured)."""
     fig = Figure(figsize=(9, 4.2))
     ax = fig.subplots()
     full = max(episodes, default=0)
@@ -78,8 +79,8 @@ def search_png(scores: list[float], episodes: list[int], path: Path, title: str,
         if marked:
             ax.scatter([order[i] for i in marked], [scores[i] for i in marked], s=size, facecolors="none",
                        edgecolors=color, linewidths=1.2, label=label)
-    if judged:
-        _star(ax, order[judged[0]], scores[judged[0]], "chosen ticket (best held-out success)")
+    if chosen is not None:
+        _star(ax, order[chosen], scores[chosen], "chosen ticket (best held-out success)")
     ax.set_title(title, loc="left")  # a long title runs on over the legend, not off the left edge
     ax.set(xlabel="tickets, in the order tried", ylabel="search score (mean objective)",
            ylim=(min(0, *scores) - 0.05, max(1, *scores) + 0.05))

@@ -128,15 +128,15 @@ def _pictures(cfg: SearchConfig, names: Names, summary: Summary | MultitaskSumma
     if isinstance(summary, MultitaskSummary):
         tasks_png(summary.verdict, out / "verdict.png",
                   f"{names.policy}: one ticket for {len(summary.verdict.tasks)} tasks")
-        judged = summary.verdict.tickets
+        judged, best = summary.verdict.tickets, summary.verdict.best
     else:
         arms_png(to_dicts(summary.rows()), out / "verdict.png", title, best=f"ticket {summary.best.label}")
-        judged = [t.id for t in summary.tickets]
+        judged, best = [t.id for t in summary.tickets], summary.best.id
     span = summary.run.heldout_seeds
     search_png([c.mean_return for c in result.candidates], [c.n for c in result.candidates],
                out / "search.png", search_title(cfg, names),
                validated=list(place.values()) if validated else [],
-               judged=[place[t] for t in judged if t in place],
+               judged=[place[t] for t in judged if t in place], chosen=place.get(best),
                base=(base_return, f"held-out seeds {span[0]}:{span[1] + 1}"))
 
 
