@@ -1,7 +1,7 @@
 """The budget curve: what more search episodes buy on the pairs with a weak base.
 
     python benchmarks/budget_curve.py [--budgets 2000 ...]     # resumable, pair by pair
-    python benchmarks/budget_curve.py --budgets 850 --subspace tiled [--search-seeds 40]
+    python benchmarks/budget_curve.py --budgets 850 --subspace full [--search-seeds 40]
     python benchmarks/budget_curve.py --plot-only              # redraw budget_curve.png
 
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
@@ -10,7 +10,7 @@ ticket judged again, with base and zero ticket, on the same two fresh ranges. `-
 and `--subspace` change the search at those budgets (a point is a budget and a search). The point
 at the default budget and search is the existence table's own. Each pair's row is kept in
 benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget, then -seedsN and
--tiled where they differ from the defaults), so a run resumes pair by pair, on another machine
+-full where they differ from the defaults), so a run resumes pair by pair, on another machine
 too; its run folder under benchmarks/runs/budget-<point>/ resumes a pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
 """
@@ -27,7 +27,7 @@ from results_files import RESULTS, write_results
 from goldenticket.files import write_atomic
 
 ROWS = RESULTS / "budget_curve"
-SEARCH = {"search_seeds": SETTINGS["search_seeds"], "subspace": "full"}  # what a point may change
+SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace")}  # what a point may change
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
@@ -71,7 +71,7 @@ def search_of(point: dict) -> dict:
 
 
 def search_label(search: dict) -> str:
-    space = "" if search["subspace"] == "full" else f", {search['subspace']}"
+    space = "" if search["subspace"] == SEARCH["subspace"] else f", {search['subspace']}"
     return f"{search['search_seeds']} seeds{space}"
 
 
@@ -178,8 +178,8 @@ def main() -> None:
     parser.add_argument("--search-seeds", type=int, default=SEARCH["search_seeds"],
                         help="initial states each ticket is searched on")
     parser.add_argument("--subspace", choices=("full", "tiled"), default=SEARCH["subspace"],
-                        help="what the search varies: every entry, or one action-sized vector repeated "
-                        "over the horizon")
+                        help="what the search varies: one action-sized vector repeated over the horizon, "
+                        "or every entry")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--plot-only", action="store_true", help="redraw budget_curve.png; run no episode")
     args = parser.parse_args()

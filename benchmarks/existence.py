@@ -25,7 +25,7 @@ from build_zoo import MT10
 from results_files import RESULTS, write_results
 
 from goldenticket.config import EvaluateConfig, SearchConfig
-from goldenticket.policies import BUNDLED_DIR, bundled_tickets
+from goldenticket.policies import BUNDLED_DIR
 from goldenticket.policies.registry import split_steps
 from goldenticket.report import p_vs_base, rate_text
 from goldenticket.stats import paired_exact_test, sign_test, wilson_interval
@@ -37,7 +37,8 @@ from goldenticket.workflow import evaluate_tickets, find_golden_tickets
 HERE = Path(__file__).parent
 POLICIES = ("flow", "ddim@8", "ddim@2")
 DEFAULTS = SearchConfig("", "")  # the `search` defaults, as a user gets them
-SETTINGS = {name: getattr(DEFAULTS, name) for name in ("method", "budget", "seed", "search_seeds")} | {
+SETTINGS = {name: getattr(DEFAULTS, name) for name in ("method", "budget", "seed", "search_seeds",
+                                                        "subspace")} | {
     "validation_seeds": DEFAULTS.validation(), "heldout": DEFAULTS.heldout, "top_k": DEFAULTS.top_k}
 FRESH = 200  # fresh held-out seeds for each pair's best ticket, in two ranges after the judged ones
 FRESH_RANGES = ("fresh", "fresh_2")
@@ -285,9 +286,11 @@ def keep_best_tickets(summaries: list[dict], folder: Path) -> None:
 
 
 def ship(summaries: list[dict]) -> int:
-    """Replace the bundled tickets with this run's golden ones (each with its fresh check)."""
-    for old in bundled_tickets():
-        old.unlink()
+    """Replace the bundled tickets of this run's policies with its golden ones (each with its fresh
+    check); other policies' tickets stay."""
+    for s in summaries:
+        for old in (BUNDLED_DIR / split_steps(s["policy"])[0] / "tickets").glob("*.safetensors"):
+            old.unlink()
     shipped = 0
     for s in summaries:
         best = s["best"]

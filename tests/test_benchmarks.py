@@ -82,19 +82,19 @@ def test_budget_curve_keeps_a_changed_search_apart_from_the_default(tmp_path, mo
     weak = [_row(0.5, 0.6, 0.7, 0.001, 0.04), _row(0.3, 0.3, 0.4, 0.01, 0.2)]
     monkeypatch.setattr(budget_curve, "existence_rows", lambda: weak)
     monkeypatch.setattr(budget_curve, "ROWS", tmp_path)
-    tiled = {"search_seeds": 40, "subspace": "tiled"}
-    name = budget_curve.folder_name(850, tiled)
-    assert name == "850-seeds40-tiled" and budget_curve.point_of(name) == (850, tiled)
+    full = {"search_seeds": 40, "subspace": "full"}
+    name = budget_curve.folder_name(850, full)
+    assert name == "850-seeds40-full" and budget_curve.point_of(name) == (850, full)
     (tmp_path / name).mkdir()
     row = json.dumps(_row(0.5, 0.6, 0.9, 0.001, 0.01, spent=1250))
     for pair in "ab":
         (tmp_path / name / f"{pair}.json").write_text(row)
     points = budget_curve.curve()
     assert [(p["budget"], p["search_seeds"], p["subspace"]) for p in points] == [
-        (850, 20, "full"), (850, 40, "tiled")]
+        (850, 20, "tiled"), (850, 40, "full")]
     table = budget_curve.markdown(points)
-    assert "`python benchmarks/budget_curve.py --budgets 850 --search-seeds 40 --subspace tiled`" in table
-    assert "| 850 | 40 seeds, tiled | 1250 (1250) | fresh seeds | 100% |" in table
+    assert "`python benchmarks/budget_curve.py --budgets 850 --search-seeds 40 --subspace full`" in table
+    assert "| 850 | 40 seeds, full | 1250 (1250) | fresh seeds | 100% |" in table
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():

@@ -90,8 +90,8 @@ class SearchConfig(EngineOptions):
     max_tickets: int | None = option(None, "stop after this many distinct tickets (default: no cap)")
     max_steps: int | None = option(None, "episode step limit (default: the task's, 150 for Meta-World)")
     success: str | Callable | None = option(None, SUCCESS_HELP)
-    subspace: str = option("full", "what the search varies: full (every entry), tiled (one action-sized "
-                           "vector repeated over the horizon), channels:I,J (those action channels; the "
+    subspace: str = option("tiled", "what the search varies: tiled (one action-sized vector repeated over "
+                           "the horizon), full (every entry), channels:I,J (those action channels; the "
                            "others 0)")
     front_objective: str | None = option(None, "a second objective: also find the Pareto front between "
                                          "the two (front.json, front.png)", choices=tuple(OBJECTIVES))
