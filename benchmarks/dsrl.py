@@ -53,6 +53,7 @@ from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator
 from goldenticket.files import write_atomic
+from goldenticket.job.stages import search_evaluate
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Episode, rollout
@@ -60,7 +61,6 @@ from goldenticket.stats import wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
 from goldenticket.ticket_search import make_optimizer, run_search
-from goldenticket.workflow import query_evaluator
 
 PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies with the lowest base
 VARIANTS = {"dsrl_sac": "DSRL-SAC", "dsrl_na": "DSRL-NA"}
@@ -227,7 +227,7 @@ def search_point(task_name: str, method: str, budget: int, workers: int) -> dict
         start = time.perf_counter()
         optimizer = make_optimizer(method, policy.noise_shape, seeds_in("search", SEARCH_SEEDS),
                                    np.random.default_rng(0))
-        result = run_search(optimizer, query_evaluator(evaluator, policy.fingerprint()), budget=budget)
+        result = run_search(optimizer, search_evaluate(evaluator, policy.fingerprint()), budget=budget)
         seconds = time.perf_counter() - start
         env_steps = sum(row.length for row in store.episodes())
         top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]

@@ -25,6 +25,8 @@ from build_zoo import MT10
 from results_files import RESULTS, write_results
 
 from goldenticket.config import EvaluateConfig, SearchConfig
+from goldenticket.job import find_golden_tickets
+from goldenticket.job.evaluate import evaluate_tickets
 from goldenticket.policies import BUNDLED_DIR
 from goldenticket.policies.registry import split_steps
 from goldenticket.report import p_vs_base, rate_text
@@ -32,7 +34,6 @@ from goldenticket.stats import paired_exact_test, sign_test, wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import seeds_in
 from goldenticket.tickets import Ticket
-from goldenticket.workflow import evaluate_tickets, find_golden_tickets
 
 HERE = Path(__file__).parent
 POLICIES = ("flow", "ddim@8", "ddim@2")
@@ -77,7 +78,7 @@ def fresh_check(path: Path, policy: str, task: str, out: Path, workers: int, i: 
     with RunStore(out / f"{FRESH_RANGES[i]}.sqlite") as store:
         rows = evaluate_tickets(cfg, store)
     ticket = Ticket.load(path)
-    recorded, mine = ticket.metadata["heldout"], rows[ticket.id]
+    recorded, mine = ticket.record.heldout, rows[ticket.id]
     below = {f"p_below_{arm}": paired_exact_test(rows[arm].successes, mine.successes)
              for arm in ("base", "zero")}
     return mine.to_dict() | below | {
@@ -280,7 +281,7 @@ def keep_best_tickets(summaries: list[dict], folder: Path) -> None:
         old.unlink()
     for s in summaries:
         ticket = Ticket.load(s["best"]["ticket_path"])
-        ticket.metadata["fresh"] = s["best"]["fresh"]
+        ticket = ticket.with_record(extra=ticket.record.extra | {"fresh": s["best"]["fresh"]})
         ticket.save(folder / s["policy"].removeprefix("metaworld/").replace("/", "_").replace("@", "_at")
                     / f"{ticket.id}.safetensors")
 
@@ -297,7 +298,7 @@ def ship(summaries: list[dict]) -> int:
         if not best["golden"]:
             continue
         ticket = Ticket.load(best["ticket_path"])
-        ticket.metadata["fresh"] = best["fresh"]
+        ticket = ticket.with_record(extra=ticket.record.extra | {"fresh": best["fresh"]})
         policy_dir, _ = split_steps(s["policy"])
         ticket.save(BUNDLED_DIR / policy_dir / "tickets" / f"{ticket.id}.safetensors")
         shipped += 1

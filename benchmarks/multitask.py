@@ -28,6 +28,7 @@ from results_files import RESULTS, write_results
 
 from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
+from goldenticket.job import find_golden_tickets
 from goldenticket.multitask import transfer
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
@@ -36,7 +37,6 @@ from goldenticket.report import gain_text, p_vs_base, rate_text, short_task
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task
 from goldenticket.tickets import Ticket, zero_ticket
-from goldenticket.workflow import find_golden_tickets
 
 HERE = Path(__file__).parent
 TASKS = tuple(f"metaworld/{t}" for t in MT10)

@@ -24,13 +24,13 @@ from results_files import write_results
 
 from goldenticket.config import EngineOptions
 from goldenticket.evaluation import Evaluator
+from goldenticket.job.stages import search_evaluate
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
 from goldenticket.ticket_search import make_optimizer, run_search
-from goldenticket.tickets import Ticket
-from goldenticket.workflow import query_evaluator
+from goldenticket.tickets import Ticket, TicketRecord
 
 HERE = Path(__file__).parent
 POLICIES = ("metaworld/pick-place-v3/flow", "metaworld/reach-v3/flow", "metaworld/drawer-open-v3/flow",
@@ -53,9 +53,9 @@ def best_at(evaluator: Evaluator, fingerprint: str, noise_shape, label: str,
     method, params, _ = METHODS[label]
     optimizer = make_optimizer(method, noise_shape, seeds_in("search", SEARCH_SEEDS),
                                np.random.default_rng(0), **params)
-    result = run_search(optimizer, query_evaluator(evaluator, fingerprint), budget=budget)
+    result = run_search(optimizer, search_evaluate(evaluator, fingerprint), budget=budget)
     top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]
-    return Ticket(top.ticket, {"policy_fingerprint": fingerprint}), float(np.mean(top.successes))
+    return Ticket(top.ticket, TicketRecord(policy_fingerprint=fingerprint)), float(np.mean(top.successes))
 
 
 def held_out(evaluator: Evaluator, ticket: Ticket | None) -> float:

@@ -25,6 +25,7 @@ from results_files import RESULTS, write_results
 
 from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.evaluation import Evaluator, judge
+from goldenticket.job.stages import search_evaluate
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.report import rate_text
@@ -32,8 +33,7 @@ from goldenticket.stats import paired_exact_test
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
 from goldenticket.ticket_search import SearchResult, make_optimizer, run_search
-from goldenticket.tickets import Ticket, zero_ticket
-from goldenticket.workflow import query_evaluator
+from goldenticket.tickets import Ticket, TicketRecord, zero_ticket
 
 HERE = Path(__file__).parent
 NOISE_HELPS = ("reach-v3/ddim@2", "drawer-open-v3/flow", "peg-insert-side-v3/ddim@2")
@@ -52,7 +52,7 @@ def search(evaluator: Evaluator, policy, start: str) -> SearchResult:
     """A `BUDGET`-episode search from `start`: CMA-ES from w = 0 with that step size, or "rs+S":
     RS_STAGE random tickets, then CMA-ES from the best of them with step size S."""
     seeds, rng = seeds_in("search", DEFAULTS.search_seeds), np.random.default_rng(DEFAULTS.seed)
-    evaluate, shape = query_evaluator(evaluator, policy.fingerprint()), policy.noise_shape
+    evaluate, shape = search_evaluate(evaluator, policy.fingerprint()), policy.noise_shape
 
     def run(method: str, budget: int, **params) -> SearchResult:
         return run_search(make_optimizer(method, shape, seeds, rng, **params), evaluate, budget=budget,
@@ -75,8 +75,8 @@ def delivered(evaluator: Evaluator, policy, start: str) -> tuple[Ticket, bool]:
     result = search(evaluator, policy, start)
     n = DEFAULTS.search_seeds
     top = result.top(3 * DEFAULTS.top_k, min_episodes=n) or result.top(3 * DEFAULTS.top_k)
-    zero = Ticket(zero_ticket(shape).noise, {"policy_fingerprint": fingerprint})
-    tickets = [Ticket(c.ticket, {"policy_fingerprint": fingerprint}) for c in top] + [zero]
+    zero = Ticket(zero_ticket(shape).noise, TicketRecord(policy_fingerprint=fingerprint))
+    tickets = [Ticket(c.ticket, TicketRecord(policy_fingerprint=fingerprint)) for c in top] + [zero]
     runs = evaluator.run([(t.id, Constant(t.noise), seeds_in("validation", VALIDATION)) for t in tickets])
     best = int(np.argmax([np.mean([r.ret for r in results]) for results in runs]))  # ties: search rank
     return tickets[best], tickets[best].id == zero.id

@@ -24,8 +24,9 @@ from results_files import write_results
 
 from goldenticket.config import EvaluateConfig, SearchConfig
 from goldenticket.evaluation import to_dicts
+from goldenticket.job import find_golden_tickets
+from goldenticket.job.evaluate import evaluate_tickets
 from goldenticket.report import p_vs_base, rate_text
-from goldenticket.workflow import evaluate_tickets, find_golden_tickets
 
 HERE = Path(__file__).parent
 TASKS = ("pick-place-v3", "reach-v3", "drawer-open-v3")

@@ -9,7 +9,7 @@ import pytest
 import goldenticket
 from goldenticket.cli import main
 from goldenticket.store import RunStore
-from goldenticket.tickets import Ticket, zero_ticket
+from goldenticket.tickets import Ticket, ticket_id, zero_ticket
 
 HERE = Path(__file__).parent
 EXACT = ["--policy", "byo_example:make_exact_policy", "--task", "byo_example:make_env"]
@@ -36,8 +36,7 @@ def test_where_any_noise_hurts_the_zero_ticket_is_delivered(tmp_path, capsys):
     with RunStore(out / "run.sqlite") as store:  # the zero arm's held-out episodes serve it: none rerun
         judged = {r.ticket_id for r in store.episodes(seed_set="heldout")}
     assert best["ticket_id"] not in judged and {"base", "zero"} <= judged
-    assert delivered.id == Ticket(zero_ticket((4, 2)).noise, {"policy_fingerprint": delivered.metadata[
-        "policy_fingerprint"]}).id
+    assert delivered.id == ticket_id(zero_ticket((4, 2)).noise, delivered.record.policy_fingerprint)
 
 
 @pytest.mark.slow
@@ -52,8 +51,8 @@ def test_a_given_ticket_is_validated_beside_the_search(tmp_path):
     judged = {t.id for t in summary.tickets}
     zero = next(t.id for t in summary.tickets if t.source == "zero ticket")  # judged whatever its score
     assert len(scores) == 3 * 2 + 2  # the search's 3 x top-k, the zero ticket and the given one
-    fingerprint = Ticket.load(summary.best.path).metadata["policy_fingerprint"]
-    assert Ticket(Ticket.load(given).noise, {"policy_fingerprint": fingerprint}).id in scores
+    fingerprint = Ticket.load(summary.best.path).record.policy_fingerprint
+    assert ticket_id(Ticket.load(given).noise, fingerprint) in scores
     assert 2 <= len(judged) <= 3  # the top 2 on validation, and the zero ticket if not among them
     assert min(scores[t] for t in judged - {zero}) >= max(scores[t] for t in set(scores) - judged)
 
@@ -69,18 +68,18 @@ def test_given_tickets_need_validation_seeds(tmp_path, capsys):
 
 def test_the_zero_ticket_ranks_before_a_ticket_it_ties(tmp_path):
     from goldenticket.evaluation import Judged
-    from goldenticket.results import ZERO_SOURCE
+    from goldenticket.job.folder import save_ranked
     from goldenticket.rollout import EpisodeResult
-    from goldenticket.workflow import _save_ranked
+    from goldenticket.tickets import ZERO_SOURCE, TicketRecord
 
     def judged(successes: str, p: float) -> Judged:
         return Judged("arm", [EpisodeResult(s, c == "1", float(c == "1"), 10, 0.0)
                               for s, c in enumerate(successes)], p_vs_base=p)
 
-    zero = Ticket(zero_ticket((4, 2)).noise, {"source": ZERO_SOURCE, "search_score": None})
-    tie, worse = (Ticket(np.full((4, 2), w, np.float32), {"search_score": 1.0}) for w in (0.5, -0.5))
+    zero = Ticket(zero_ticket((4, 2)).noise, TicketRecord(source=ZERO_SOURCE))
+    tie, worse = (Ticket(np.full((4, 2), w, np.float32), TicketRecord(search_score=1.0)) for w in (0.5, -0.5))
     rows = {zero.id: judged("1100", 0.3), tie.id: judged("1010", 0.1), worse.id: judged("1000", 0.6)}
-    ranked = _save_ranked([tie, worse, zero], rows, tmp_path, (0, 3), {})
+    ranked = save_ranked([tie, worse, zero], rows, tmp_path, (0, 3), {})
     assert [t.id for t in ranked] == [zero.id, tie.id, worse.id]  # a lower p does not break the tie
     rows[tie.id] = judged("1110", 0.1)
-    assert _save_ranked([tie, worse, zero], rows, tmp_path, (0, 3), {})[0].id == tie.id
+    assert save_ranked([tie, worse, zero], rows, tmp_path, (0, 3), {})[0].id == tie.id

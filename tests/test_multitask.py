@@ -152,6 +152,8 @@ def test_several_tasks_validate_on_every_task_when_asked(mt_policy, tmp_path):
                           for task in TASKS]) for t in {r.ticket_id for r in rows}}
     assert scores[best] == max(scores.values())
     assert Ticket.load(out / "tickets" / f"{best}.safetensors").metadata["validation_score"] == scores[best]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["validation_scores"] == {t: scores[t] for t in summary["tickets"]}  # as one task's rows
 
 
 @pytest.mark.parametrize("args, message", [

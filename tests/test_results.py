@@ -8,10 +8,10 @@ import pytest
 
 from goldenticket.config import SearchConfig
 from goldenticket.evaluation import judged_arms
+from goldenticket.job import find_golden_tickets
 from goldenticket.results import Summary
 from goldenticket.rollout import NONFINITE, EpisodeResult
 from goldenticket.tickets import Ticket
-from goldenticket.workflow import find_golden_tickets
 
 HERE = Path(__file__).parent
 

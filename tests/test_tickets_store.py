@@ -1,6 +1,7 @@
 import json
 import sqlite3
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,7 +10,7 @@ from safetensors.numpy import save_file
 from goldenticket.errors import UserError
 from goldenticket.rollout import NONFINITE
 from goldenticket.store import EpisodeRow, RunStore
-from goldenticket.tickets import Ticket, zero_ticket
+from goldenticket.tickets import Ticket, TicketRecord, ticket_id, zero_ticket
 
 
 def noise(seed=0, shape=(16, 4)):
@@ -29,7 +30,7 @@ def load_error(path, **kwargs) -> str:
 
 def test_ticket_round_trip(tmp_path):
     meta = {"policy": "dp-pusht", "method": "cmaes", "budget": 200, "score": np.float32(0.75)}
-    ticket = Ticket(noise(), meta)
+    ticket = Ticket(noise(), TicketRecord.from_metadata(meta, "t"))
     path = ticket.save(tmp_path / "sub" / "t.safetensors")
     loaded = Ticket.load(path, expected_shape=(16, 4))
     assert loaded.noise.dtype == np.float32
@@ -41,10 +42,10 @@ def test_ticket_round_trip(tmp_path):
 
 def test_ticket_id_stable_and_distinct():
     a = noise(0)
-    assert Ticket(a, {}).id == Ticket(a.copy(), {"other": 1}).id
-    assert Ticket(a.astype(np.float64), {}).id == Ticket(a, {}).id
-    assert len(Ticket(a, {}).id) == 12 and int(Ticket(a, {}).id, 16) >= 0
-    assert Ticket(noise(1), {}).id != Ticket(a, {}).id
+    assert Ticket(a).id == Ticket(a.copy(), TicketRecord(extra={"other": 1})).id == ticket_id(a, None)
+    assert Ticket(a.astype(np.float64)).id == Ticket(a).id
+    assert len(Ticket(a).id) == 12 and int(Ticket(a).id, 16) >= 0
+    assert Ticket(noise(1)).id != Ticket(a).id
     assert zero_ticket((2, 3)).id != zero_ticket((3, 2)).id  # same bytes, different shape
 
 
@@ -60,7 +61,7 @@ def test_zero_ticket():
 )
 def test_ticket_constructor_validates(bad, match):
     with pytest.raises(UserError, match=match):
-        Ticket(bad, {})
+        Ticket(bad)
 
 
 def test_load_missing_file(tmp_path):
@@ -68,7 +69,7 @@ def test_load_missing_file(tmp_path):
 
 
 def test_load_truncated_and_junk(tmp_path):
-    path = Ticket(noise(), {"a": 1}).save(tmp_path / "t.safetensors")
+    path = Ticket(noise(), TicketRecord(extra={"a": 1})).save(tmp_path / "t.safetensors")
     path.write_bytes(path.read_bytes()[:-10])
     assert "not a valid safetensors" in load_error(path)
     path.write_bytes(b"definitely not safetensors")
@@ -96,7 +97,7 @@ def test_load_nan(tmp_path):
 
 
 def test_load_wrong_shape(tmp_path):
-    path = Ticket(noise(), {}).save(tmp_path / "t.safetensors")
+    path = Ticket(noise()).save(tmp_path / "t.safetensors")
     message = load_error(path, expected_shape=(8, 4))
     assert "(16, 4)" in message and "(8, 4)" in message
     save_file({"noise": np.zeros(5, np.float32)}, str(path))
@@ -212,9 +213,10 @@ def test_store_rejects_corrupt_and_foreign_files(tmp_path):
 
 def test_ticket_id_names_one_ticket_for_one_policy():
     a = noise(0)
-    assert Ticket(a, {"policy_fingerprint": "aa@8"}).id != Ticket(a, {"policy_fingerprint": "aa@2"}).id
-    same = {"policy_fingerprint": "aa@8"}
-    assert Ticket(a, same | {"x": 1}).id == Ticket(a, same).id
+    assert ticket_id(a, "aa@8") != ticket_id(a, "aa@2")
+    same = TicketRecord(policy_fingerprint="aa@8")
+    assert Ticket(a, TicketRecord(policy_fingerprint="aa@8", extra={"x": 1})).id == Ticket(a, same).id == \
+        ticket_id(a, "aa@8")
 
 
 def test_ambiguous_bundled_ticket_id_lists_the_candidates(tmp_path, monkeypatch):
@@ -228,7 +230,7 @@ def test_ambiguous_bundled_ticket_id_lists_the_candidates(tmp_path, monkeypatch)
 
 
 def test_ticket_found_for_another_policy_or_task_does_not_fit():
-    ticket = Ticket(noise(0), {"policy_fingerprint": "aa@8", "task": "metaworld/reach-v3", "policy": "p"})
+    ticket = Ticket(noise(0), TicketRecord(policy_fingerprint="aa@8", task="metaworld/reach-v3", policy="p"))
     ticket.check_fits("aa@8", "metaworld/reach-v3", "t")
     for fingerprint, task in (("bb@8", "metaworld/reach-v3"), ("aa@8", "metaworld/push-v3")):
         with pytest.raises(UserError, match="allow_transfer runs it anyway"):
@@ -273,3 +275,77 @@ def test_store_with_a_damaged_config_or_return_is_one_line(tmp_path):
     with RunStore(path) as store, pytest.raises(UserError) as info:
         store.claim_config({"policy": "dp"})
     assert str(path) in str(info.value) and "config is not JSON" in str(info.value)
+
+
+@pytest.mark.parametrize("name", ["run.sqlite", "run.sqlite-journal", "run.sqlite-wal"])
+@pytest.mark.parametrize("dangling", [True, False])
+def test_store_refuses_a_symbolic_link(tmp_path, name, dangling):
+    target = tmp_path / "elsewhere"
+    if not dangling:
+        target.write_bytes(b"")
+    (tmp_path / name).symlink_to(target)
+    with pytest.raises(UserError) as info:
+        RunStore(tmp_path / "run.sqlite")
+    assert str(info.value) == f"{tmp_path / name} is a symbolic link; move it away: a run store and its " \
+        "journal are regular files"
+    assert target.exists() != dangling and (dangling or target.read_bytes() == b"")
+
+
+def _damaged_page(path):
+    """A run store with one page in the middle overwritten by noise."""
+    with RunStore(path) as store:
+        store.record([row(s, ticket_id=f"t{s % 50:011d}") for s in range(3000)])
+    data = path.read_bytes()
+    middle = len(data) // 4096 // 2 * 4096
+    path.write_bytes(data[:middle] + np.random.default_rng(0).bytes(4096) + data[middle + 4096:])
+
+
+def _truncated(path):
+    with RunStore(path) as store:
+        store.record([row(s) for s in range(3000)])
+    path.write_bytes(path.read_bytes()[:100_000])
+
+
+@pytest.mark.parametrize("damage", [_damaged_page, _truncated,
+                                    lambda path: path.write_bytes(np.random.default_rng(0).bytes(5000))])
+def test_a_damaged_store_is_one_line_on_the_command_line(tmp_path, tiny_policies, capsys, damage):
+    from goldenticket.cli import main
+
+    tiny_policies["flow"].save(tmp_path / "policy")
+    out = tmp_path / "run"
+    out.mkdir()
+    damage(out / "run.sqlite")
+    before = (out / "run.sqlite").read_bytes()
+    capsys.readouterr()
+    code = main(["search", "--policy", str(tmp_path / "policy"), "--task", "metaworld/pick-place-v3",
+                 "--budget", "4", "--search-seeds", "2", "--heldout", "2", "--max-steps", "5",
+                 "--workers", "1", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"{out / 'run.sqlite'}: damaged run store (" in err and "move it away" in err
+    assert (out / "run.sqlite").read_bytes() == before
+
+
+def test_open_folder_says_what_is_in_the_way(tmp_path, monkeypatch):
+    from goldenticket.files import open_folder
+
+    monkeypatch.chdir(tmp_path)
+    Path("gone").symlink_to("nowhere")
+    Path("loop").symlink_to("loop")
+    Path("file").write_text("")
+    cases = {"": "the output folder's name is empty; name a folder",
+             "gone": "output folder gone is a dangling symbolic link (to nowhere); name a folder",
+             "loop": "output folder loop is a symbolic link loop; name a folder",
+             "loop/run": "output folder loop/run: loop is a symbolic link loop; name a folder",
+             "gone/run": "output folder gone/run: gone is a dangling symbolic link (to nowhere); name a folder",
+             "file": "output folder file is a file; name a folder",
+             "file/run": "cannot create output folder file/run: Not a directory"}
+    for out, message in cases.items():
+        with pytest.raises(UserError) as info:
+            open_folder(out)
+        assert str(info.value) == message
+    assert not Path("nowhere").exists()
+    Path("linked").symlink_to("a", target_is_directory=True)
+    for out in (Path("a/b"), "a/b", tmp_path / "linked", "linked/c", "."):
+        open_folder(out)
+        assert Path(out).is_dir()

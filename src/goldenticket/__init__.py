@@ -32,10 +32,10 @@ def search(policy, task, out: str | Path, **options):
     front_objective, stop_after_perfect, max_tickets, max_steps, success, subspace,
     validation_seeds, no_regression, tickets, log, workers, backend, address, max_nonfinite)."""
     from goldenticket.config import SearchConfig, make
-    from goldenticket.workflow import find_golden_tickets
+    from goldenticket.job import find_golden_tickets
 
     cfg = make(SearchConfig, {"policy": policy, "task": task} | options)
-    return find_golden_tickets(cfg, Path(out))
+    return find_golden_tickets(cfg, out)
 
 
 def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
@@ -47,7 +47,7 @@ def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
     were found under. `options`: the other fields of `config.EvaluateConfig` (seed, max_steps,
     success, allow_transfer, mixture, epsilon, workers, backend, address, max_nonfinite)."""
     from goldenticket.config import EvaluateConfig, make
-    from goldenticket.workflow import evaluate_tickets
+    from goldenticket.job.evaluate import evaluate_tickets
 
     seeds = seeds if isinstance(seeds, range) else list(seeds)
     cfg = make(EvaluateConfig, {"policy": policy, "task": task, "tickets": tickets,

@@ -20,6 +20,7 @@ from goldenticket.tasks.base import SEED_SETS, seed_set_of
 ZERO_MARK = " (w = 0)"  # ends the zero ticket's label in the verdict table when it is judged as a ticket
 
 ALPHA = 0.05
+BROKEN_UNDER = ("base", "zero")  # both non-finite too often: the policy or its adapter is broken
 Job = tuple[str, NoiseSource, Sequence[int]]  # (label, noise source, seeds)
 
 
@@ -30,8 +31,9 @@ class Evaluator:
     stopped. The label identifies the noise source: "base", "zero", or a ticket id. Two checks
     stop a run with a UserError: a new episode whose initial observation differs from the one
     first recorded for its task and seed (in the store, or in memory without one; the episode is
-    not recorded), and an arm whose held-out episodes ended with a NaN or infinite action more
-    often than `max_nonfinite` of them (rarer ones count as failures).
+    not recorded), and a policy that ended more than `max_nonfinite` of the held-out episodes of
+    both the base and the zero ticket (of the base where no zero ticket runs) with a NaN or infinite
+    action: it or its adapter is broken. Any other non-finite episode is a failure of its arm.
     """
 
     def __init__(self, engine: Engine, store: RunStore | None = None,
@@ -111,16 +113,33 @@ class Evaluator:
         return [r.digest == f for r, f in zip(results, first, strict=True)]
 
     def _check_nonfinite(self, heldout: dict[str, list[int]], known: dict) -> None:
-        """UserError if more than max_nonfinite of an arm's held-out episodes (`heldout`: seeds by
-        label) ended with a non-finite action among those finished (`known`)."""
-        for label, seeds in heldout.items():
-            finished = [known[label, s] for s in seeds if (label, s) in known]
-            ended = [r for r in finished if r.cause == NONFINITE]
-            if len(ended) > self.max_nonfinite * len(seeds):
-                raise OptionError(f"policy {self.engine.label!r} returned NaN or infinite actions in "
-                                  f"{len(ended)} of the {len(seeds)} held-out episodes of {label}, more than "
-                                  f"max_nonfinite {self.max_nonfinite:g} of them (the first on seed "
-                                  f"{ended[0].seed}, at step {ended[0].length})", "max_nonfinite")
+        """OptionError if more than max_nonfinite of the held-out episodes (`heldout`: seeds by label)
+        of both the base and the zero ticket, on the seeds they share, ended with a non-finite action
+        among those finished (`known`); of the base alone in a run without a zero ticket. A ticket's
+        non-finite episodes are its failures, never a stop."""
+        arms = [label for label in BROKEN_UNDER if label in heldout]
+        if "base" not in arms:
+            return
+        shared = set(heldout["base"]).intersection(*(heldout[label] for label in arms))
+        seeds = [s for s in heldout["base"] if s in shared]
+        ended = {label: [known[label, s] for s in seeds if (label, s) in known
+                         and known[label, s].cause == NONFINITE] for label in arms}
+        if all(len(results) > self.max_nonfinite * len(seeds) for results in ended.values()):
+            raise OptionError(self._nonfinite_line(ended, len(seeds)), "max_nonfinite")
+
+    def _nonfinite_line(self, ended: dict[str, list[EpisodeResult]], n: int) -> str:
+        """The stop's line: the non-finite episodes of base (and zero) among their `n` held-out ones,
+        and the first of them."""
+        arm, first = min(((label, r) for label, results in ended.items() for r in results),
+                         key=lambda item: item[1].seed)  # ties: the base's, listed first
+        line = (f"policy {self.engine.label!r} returned NaN or infinite actions in {len(ended['base'])} of "
+                f"the {n} held-out episodes of base")
+        if "zero" not in ended:
+            return (line + f", more than max_nonfinite {self.max_nonfinite:g} of them (the first on seed "
+                    f"{first.seed}, at step {first.length})")
+        return (line + f" and {len(ended['zero'])} of zero, more than max_nonfinite {self.max_nonfinite:g} "
+                f"of them in each (the first on seed {first.seed}, at step {first.length}, under {arm}): it "
+                "breaks under its own noise and under the zero ticket: the policy or its adapter is broken")
 
 
 @dataclass

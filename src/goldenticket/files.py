@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import secrets
 import stat
@@ -14,16 +15,17 @@ _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISLNK, "a symbolic link"), (stat.S
           (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a device"), (stat.S_ISBLK, "a device"))
 
 
-def check_target(path: Path) -> None:
-    """Raise UserError unless `path` is absent or a regular file. A symbolic link is refused
-    even when it points to a regular file: the rename would replace the link, not its file."""
+def check_target(path: Path, advice: str = "name a new file or a regular file to replace") -> None:
+    """Raise UserError (ending in `advice`) unless `path` is absent or a regular file. A symbolic
+    link is refused even when it points to a regular file: the rename would replace the link, not
+    its file."""
     try:
         mode = path.lstat().st_mode
     except (FileNotFoundError, NotADirectoryError):
         return
     if not stat.S_ISREG(mode):
         kind = next((name for test, name in _KINDS if test(mode)), "not a regular file")
-        raise UserError(f"{path} is {kind}; name a new file or a regular file to replace")
+        raise UserError(f"{path} is {kind}; {advice}")
 
 
 def write_atomic(path: str | Path, data: bytes | str) -> Path:
@@ -54,3 +56,36 @@ def new_folder_beside(path: Path) -> Path:
     folder = path.parent / f".{path.name}.{secrets.token_hex(4)}.partial"
     folder.mkdir(parents=True)
     return folder
+
+
+def open_folder(out: str | Path) -> None:
+    """Create the output folder `out` (and its parents) unless it is one already; UserError for an
+    empty name (pass it as typed: Path("") is "."), a symbolic link on the way that leads nowhere
+    or a file in the way."""
+    if out == "":
+        raise UserError("the output folder's name is empty; name a folder")
+    out = Path(out)
+    for path in (out, *out.parents):
+        if kind := _broken_link(path):
+            raise UserError(f"output folder {out} is {kind}; name a folder" if path == out else
+                            f"output folder {out}: {path} is {kind}; name a folder")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"output folder {out} is a file; name a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create output folder {out}: {exc.strerror}") from None
+
+
+def _broken_link(path: Path) -> str | None:
+    """What is wrong with `path` if it is a symbolic link that leads to no file, else None."""
+    if not path.is_symlink():
+        return None
+    try:
+        path.stat()
+    except (FileNotFoundError, NotADirectoryError):
+        return f"a dangling symbolic link (to {os.readlink(path)})"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symbolic link loop"
+    return None

@@ -1,6 +1,6 @@
 """Tickets across tasks: the transfer matrix (every task's ticket on every task) with its greedy
 cover. (One ticket for a multi-task policy's task-averaged success is the job itself, on several
-tasks: `workflow.find_golden_tickets`.)
+tasks: `job.find_golden_tickets`.)
 
 Every task uses the same search and held-out seed numbers; the seed sets are disjoint, so no
 task's held-out states were searched on, whichever task a ticket came from.
@@ -16,6 +16,8 @@ from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.evaluation import ALPHA, Evaluator, Judged, VerdictRow, judge, judge_size
 from goldenticket.files import write_atomic
+from goldenticket.job import Names, checked_tasks, find_golden_tickets, shared
+from goldenticket.job.folder import open_store
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
 from goldenticket.policies import find_ticket, load_policy
@@ -23,13 +25,6 @@ from goldenticket.results import Cover, TransferCell, TransferStudy
 from goldenticket.stats import holm_adjust
 from goldenticket.tasks import seeds_in
 from goldenticket.tickets import Ticket, zero_ticket
-from goldenticket.workflow import (
-    Names,
-    checked_tasks,
-    find_golden_tickets,
-    open_store,
-    shared,
-)
 
 
 def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None) -> TransferStudy:
@@ -46,10 +41,10 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     if ticket_refs:
         tickets = [Ticket.load(find_ticket(ref), expected_shape=policy.noise_shape) for ref in ticket_refs]
         for ref, ticket in zip(ticket_refs, tickets, strict=True):
-            if ticket.metadata.get("policy_fingerprint", names.fingerprint) != names.fingerprint:
+            if ticket.record.policy_fingerprint not in (None, names.fingerprint):
                 raise UserError(f"{ref}: ticket {ticket.id} was found for policy "
-                                f"{ticket.metadata.get('policy')}, not {names.policy} ({names.fingerprint})")
-        found_on = {t.id: t.metadata.get("tasks", [t.metadata.get("task", "given")]) for t in tickets}
+                                f"{ticket.record.policy}, not {names.policy} ({names.fingerprint})")
+        found_on = {t.id: list(t.record.tasks or [t.record.task or "given"]) for t in tickets}
     else:
         found = {task.name: _searched_ticket(cfg, task.name, out) for task in tasks}
         tickets = list(found.values())

@@ -6,9 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from goldenticket.evaluation import ZERO_MARK, MultitaskVerdict, VerdictRow, p_value_note, to_dicts
-from goldenticket.tickets import Ticket
-
-ZERO_SOURCE = "zero ticket"  # a FoundTicket's source when it is the zero ticket (w = 0)
+from goldenticket.tickets import ZERO_SOURCE, Ticket
 
 
 def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
@@ -190,10 +188,12 @@ class TransferStudy:
 
 @dataclass(frozen=True)
 class MultitaskSummary:
-    """The job's result on several tasks: the verdict per task and on average, and the search."""
+    """The job's result on several tasks: the verdict per task and on average, the search, and each
+    judged ticket's validation score (task-averaged mean return; empty without validation)."""
 
     verdict: MultitaskVerdict
     run: SearchRun
+    validation: dict[str, float] = field(default_factory=dict)
 
     @property
     def p_value_note(self) -> str:
@@ -201,4 +201,5 @@ class MultitaskSummary:
 
     def to_dict(self) -> dict:
         """summary.json."""
-        return self.verdict.to_dict() | self.run.to_dict() | {"p_value_note": self.p_value_note}
+        scores = {"validation_scores": self.validation} if self.validation else {}
+        return self.verdict.to_dict() | self.run.to_dict() | scores | {"p_value_note": self.p_value_note}

@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from goldenticket.errors import UserError
+from goldenticket.files import check_target
 
 _VERSION = 1
 _SCHEMA = """
@@ -27,6 +28,7 @@ _INITIAL_STATES = """CREATE TABLE IF NOT EXISTS initial_states (
     task TEXT NOT NULL, seed INTEGER NOT NULL, digest TEXT NOT NULL, PRIMARY KEY (task, seed)
 )"""
 _COLUMNS = "ticket_id, task, seed, seed_set, success, ret, length, wall_time, cause"
+_SIBLINGS = ("-journal", "-wal", "-shm")  # files SQLite keeps beside the store
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,12 @@ def _values(r: EpisodeRow) -> tuple:
     )
 
 
+def _first_problem(check: str) -> str:
+    """The first problem in SQLite's quick_check report (a heading, then a line per problem)."""
+    problems = [line for line in check.splitlines() if line.strip() and not line.startswith("***")]
+    return problems[0] if problems else check
+
+
 class RunStore:
     """SQLite-backed record of a run. Re-recording an episode replaces it, so resuming is safe.
 
@@ -68,6 +76,8 @@ class RunStore:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        for file in (self.path, *(self.path.with_name(self.path.name + s) for s in _SIBLINGS)):
+            check_target(file, "move it away: a run store and its journal are regular files")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._con = sqlite3.connect(self.path, timeout=60, isolation_level=None)
@@ -97,18 +107,23 @@ class RunStore:
                     self._con.execute("ROLLBACK")
                 raise
         except sqlite3.DatabaseError as e:
-            damaged = getattr(e, "sqlite_errorname", "") in ("SQLITE_CORRUPT", "SQLITE_NOTADB")
-            advice = "the file is damaged: move it away to start afresh" if damaged else \
-                "what was recorded before is kept"
-            raise UserError(f"{self.path}: run store failed ({e}); {advice}") from None
+            if getattr(e, "sqlite_errorname", "") in ("SQLITE_CORRUPT", "SQLITE_NOTADB"):
+                raise self._damaged(str(e)) from None
+            failed = f"{self.path}: run store failed ({e}); what was recorded before is kept"
+            raise UserError(failed) from None
+
+    def _damaged(self, reason: str) -> UserError:
+        """The one line for a file that is not a sound run store."""
+        return UserError(f"{self.path}: damaged run store ({reason}); move it away to start again")
 
     def _schema_problem(self) -> str | None:
-        """Create the schema in a new file; say what is wrong with a file that is not a store."""
+        """Create the schema in a new file; say what is wrong with a file that is not a store
+        (UserError for a damaged store)."""
         version = self._con.execute("PRAGMA user_version").fetchone()[0]
         if version == _VERSION:
             check = self._con.execute("PRAGMA quick_check").fetchone()[0]
             if check != "ok":
-                return f"run store is damaged ({check}); move it away to start afresh"
+                raise self._damaged(_first_problem(check))
             if "cause" not in {row[1] for row in self._con.execute("PRAGMA table_info(episodes)")}:
                 self._con.execute(_CAUSE)
             self._con.execute(_INITIAL_STATES)
@@ -140,8 +155,7 @@ class RunStore:
         try:
             stored = json.loads(row[0])
         except (TypeError, ValueError, RecursionError):
-            raise UserError(f"{self.path}: its config is not JSON; the file is damaged: move it away to "
-                            "start afresh") from None
+            raise self._damaged("its config is not JSON") from None
         return stored == json.loads(json.dumps(config))
 
     def record(self, rows: Iterable[EpisodeRow]) -> None:
@@ -186,6 +200,6 @@ class RunStore:
         for name in ("seed", "success", "ret", "length", "wall_time"):
             value = getattr(row, name)
             if not isinstance(value, int | float):
-                raise UserError(f"{self.path}: episode {row.ticket_id} seed {row.seed!r} has a non-numeric "
-                                f"{name} ({value!r:.40}); the file is damaged: move it away to start afresh")
+                raise self._damaged(f"episode {row.ticket_id} seed {row.seed!r} has a non-numeric {name} "
+                                    f"({value!r:.40})")
         return replace(row, success=bool(row.success))

@@ -1,11 +1,12 @@
-"""A golden ticket: one constant (H, A) float32 noise array, saved as one .safetensors file."""
+"""A golden ticket: one constant (H, A) float32 noise array and its typed record, saved as one
+.safetensors file (the record as JSON in the header: JSON only at the file edge)."""
 
 from __future__ import annotations
 
 import hashlib
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,18 @@ from goldenticket.files import write_atomic
 _TENSOR = "noise"
 _META_KEY = "goldenticket"
 _MAX_VALUES = 2**24  # far more than any (horizon, action_dim): a header declaring more is not a ticket
+ZERO_SOURCE = "zero ticket"  # the record's source when it is the zero ticket (w = 0)
+GIVEN = "given: "  # the record's source of a ticket given to the job: "given: <file or id>"
+
+
+def ticket_id(noise: np.ndarray, fingerprint: str | None) -> str:
+    """12 hex chars of sha256 over the policy fingerprint (`policies.identity`: weights hash and
+    denoising steps), the shape and the float32 noise bytes: one id names one ticket for one policy."""
+    noise = np.ascontiguousarray(noise, dtype=np.float32)
+    digest = hashlib.sha256((fingerprint or "").encode())
+    digest.update(repr(tuple(noise.shape)).encode())
+    digest.update(noise.tobytes())
+    return digest.hexdigest()[:12]
 
 
 def _checked_noise(noise: Any, where: str) -> np.ndarray:
@@ -38,36 +51,153 @@ def _jsonable(value: Any) -> Any:
     raise TypeError(f"ticket metadata value of type {type(value).__name__} is not JSON-able")
 
 
-@dataclass(eq=False)  # numpy arrays have no boolean ==; compare .id instead
+@dataclass(frozen=True)
+class TicketRecord:
+    """What a ticket is for, how it came, and how it was judged. Identity: the policy (`policy`, its
+    `policy_fingerprint`), `noise_shape`, the `task` (`tasks` for a multi-task ticket) and the
+    episode settings (`max_steps`, `success`). Provenance: `source` (None for a search's ticket,
+    ZERO_SOURCE, or GIVEN + its file or id) and the search's settings. Results: its scores on the
+    search and validation seeds and its held-out row (`heldout`, as summary.json writes it).
+    `extra` keeps keys this version does not know, so a file reads back as it was written."""
+
+    policy: str | None = None
+    policy_fingerprint: str | None = None
+    noise_shape: tuple[int, int] | None = None
+    task: str | None = None
+    tasks: tuple[str, ...] | None = None
+    max_steps: int | None = None
+    success: str | None = None
+    source: str | None = None
+    method: str | None = None
+    subspace: str | None = None
+    searched_shape: tuple[int, ...] | None = None
+    budget: int | None = None
+    episodes_used: int | None = None
+    seed: int | None = None
+    objective: str | None = None
+    search_seeds: tuple[int, int] | None = None
+    search_score: float | None = None
+    search_episodes: int | None = None
+    validation_score: float | None = None
+    validation_seeds: tuple[int, int] | None = None
+    heldout: dict | None = None
+    front: dict | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def provenance(self) -> str:
+        """"search", "zero" or "given" ("unknown" for a ticket made by hand)."""
+        if self.source == ZERO_SOURCE or (self.source is None and self.method == "zero"):
+            return "zero"
+        if self.source is not None:
+            return "given"
+        return "search" if self.method is not None else "unknown"
+
+    def to_metadata(self) -> dict:
+        """The record as the file's JSON: unset fields left out, except `success` for a ticket that
+        names its policy and `search_score` for one whose source is known (null: not searched)."""
+        meta = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
+        meta = {k: list(v) if isinstance(v, tuple) else v for k, v in meta.items() if v is not None}
+        if self.policy_fingerprint is not None:
+            meta["success"] = self.success
+        if self.source is not None:
+            meta["search_score"] = self.search_score
+        return meta | self.extra
+
+    @classmethod
+    def from_metadata(cls, meta: dict, where: str, shape: tuple[int, ...] | None = None) -> TicketRecord:
+        """The record of a file's JSON `meta`, each known key checked; UserError naming `where`."""
+        if not isinstance(meta, dict):
+            raise UserError(f"{where}: ticket metadata must be a JSON object")
+        known = {f.name for f in fields(cls)} - {"extra"}
+        for key, check in _CHECKS.items():
+            if meta.get(key) is not None and (reason := check(meta[key])):
+                raise UserError(f"{where}: metadata {key} {reason}, got {meta[key]!r:.60}")
+        if meta.get("tasks") is not None and "task" not in meta:
+            raise UserError(f"{where}: metadata has tasks but no task")
+        if shape is not None and meta.get("noise_shape") is not None and tuple(meta["noise_shape"]) != shape:
+            raise UserError(f"{where}: metadata noise_shape {meta['noise_shape']} contradicts the noise "
+                            f"tensor's shape {list(shape)}")
+        values = {k: tuple(v) if isinstance(v, list) else v for k, v in meta.items() if k in known}
+        return cls(**values, extra={k: v for k, v in meta.items() if k not in known})
+
+
+def _string(value) -> str | None:
+    return None if isinstance(value, str) else f"must be a string, got {type(value).__name__}"
+
+
+def _count(value) -> str | None:
+    return None if type(value) is int and value >= 0 else "must be an integer >= 0"
+
+
+def _score(value) -> str | None:
+    return None if type(value) in (int, float) else "must be a number"
+
+
+def _span(value) -> str | None:
+    good = isinstance(value, list) and len(value) == 2 and all(type(s) is int and s >= 0 for s in value)
+    return None if good and value[0] <= value[1] else "must be [first, last] seeds"
+
+
+def _shape(value) -> str | None:
+    good = isinstance(value, list) and len(value) == 2 and all(type(n) is int and n > 0 for n in value)
+    return None if good else "must be [horizon, action_dim], two integers > 0"
+
+
+def _tasks(value) -> str | None:
+    good = isinstance(value, list) and value and all(isinstance(t, str) for t in value)
+    return None if good else "must be a list of task names"
+
+
+def _steps(value) -> str | None:
+    return None if type(value) is int and value > 0 else "must be an integer > 0"
+
+
+_CHECKS = {
+    "policy": _string, "policy_fingerprint": _string, "task": _string, "source": _string, "method": _string,
+    "subspace": _string, "objective": _string, "tasks": _tasks, "max_steps": _steps,
+    "success": lambda v: _string(v) and "must be an import string or null", "noise_shape": _shape,
+    "searched_shape": lambda v: None if isinstance(v, list) and all(type(n) is int for n in v) else
+    "must be a list of integers", "budget": _count, "episodes_used": _count, "seed": _count,
+    "search_episodes": _count, "search_seeds": _span, "validation_seeds": _span, "search_score": _score,
+    "validation_score": _score, "heldout": lambda v: None if isinstance(v, dict) else "must be an object",
+    "front": lambda v: None if isinstance(v, dict) else "must be an object",
+}
+
+
+@dataclass(frozen=True, eq=False)  # numpy arrays have no boolean ==; compare .id instead
 class Ticket:
-    """Constant noise fed to a frozen policy in place of fresh Gaussian noise, plus metadata."""
+    """Constant noise fed to a frozen policy in place of fresh Gaussian noise, and its record."""
 
     noise: np.ndarray
-    metadata: dict = field(default_factory=dict)
+    record: TicketRecord = TicketRecord()
 
     def __post_init__(self) -> None:
-        self.noise = _checked_noise(self.noise, "ticket")
+        object.__setattr__(self, "noise", _checked_noise(self.noise, "ticket"))
 
     @property
     def id(self) -> str:
-        """12 hex chars of sha256 over the policy fingerprint (metadata `policy_fingerprint`:
-        weights hash and denoising steps), the shape and the float32 noise bytes, so that one id
-        names one ticket for one policy."""
-        noise = np.ascontiguousarray(self.noise, dtype=np.float32)
-        digest = hashlib.sha256(self.metadata.get("policy_fingerprint", "").encode())
-        digest.update(repr(tuple(noise.shape)).encode())
-        digest.update(noise.tobytes())
-        return digest.hexdigest()[:12]
+        """`ticket_id` of the noise for the policy the record names."""
+        return ticket_id(self.noise, self.record.policy_fingerprint)
+
+    @property
+    def metadata(self) -> dict:
+        """The record as the file's JSON (`TicketRecord.to_metadata`)."""
+        return self.record.to_metadata()
+
+    def with_record(self, **changes) -> Ticket:
+        """The same noise with its record's fields changed."""
+        return Ticket(self.noise, replace(self.record, **changes))
 
     def check_fits(self, fingerprint: str, task: str | None, where: str) -> None:
         """UserError unless the ticket was found for this policy (its identity, `policies.identity`)
         and, when `task` is given, for that task (one of its `tasks` for a multi-task ticket); a
-        ticket without that metadata (made by hand) fits anything."""
-        meta, found_for = self.metadata, []
-        if meta.get("policy_fingerprint", fingerprint) != fingerprint:
-            found_for.append(f"policy {meta.get('policy')} ({meta['policy_fingerprint']})")
-        if task is not None and task not in meta.get("tasks", [meta.get("task", task)]):
-            found_for.append(f"task {meta['task']}")
+        ticket without that record (made by hand) fits anything."""
+        record, found_for = self.record, []
+        if record.policy_fingerprint not in (None, fingerprint):
+            found_for.append(f"policy {record.policy} ({record.policy_fingerprint})")
+        if task is not None and task not in (record.tasks or (record.task or task,)):
+            found_for.append(f"task {record.task}")
         if found_for:
             on = "" if task is None else f" on {task}"
             raise OptionError(f"{where}: ticket {self.id} was found for {' and '.join(found_for)}, not "
@@ -75,12 +205,12 @@ class Ticket:
                               "allow_transfer")
 
     def search_seeds(self) -> range | None:
-        """The search seeds it was found on (metadata `search_seeds`: [first, last]), if recorded."""
-        span = self.metadata.get("search_seeds")
+        """The search seeds it was found on, if recorded."""
+        span = self.record.search_seeds
         return None if span is None else range(span[0], span[1] + 1)
 
     def save(self, path: str | Path) -> Path:
-        """Write one .safetensors file: tensor "noise" plus metadata as JSON in the header."""
+        """Write one .safetensors file: tensor "noise" plus the record as JSON in the header."""
         meta = json.dumps(self.metadata, sort_keys=True, default=_jsonable)
         noise = _checked_noise(self.noise, str(path))
         return write_atomic(path, save({_TENSOR: noise}, metadata={_META_KEY: meta}))
@@ -108,45 +238,22 @@ class Ticket:
                     raise UserError(f"{path}: noise shape {shape} holds more than the {_MAX_VALUES} values a "
                                     "ticket may have")
                 noise = f.get_tensor(_TENSOR)
-                metadata = f.metadata() or {}
+                header_meta = f.metadata() or {}
         except SafetensorError as e:
             raise UserError(f"{path}: not a valid safetensors file ({e})") from None
-        return cls(_checked_noise(noise, str(path)), _parse_metadata(metadata, path))
+        return cls(_checked_noise(noise, str(path)), _record(header_meta, path, shape))
 
 
-_STRINGS = ("policy", "policy_fingerprint", "task")  # metadata that must be a string when present
-
-
-def _parse_metadata(header: dict[str, str], path: Path) -> dict:
-    """The ticket's metadata from its header, with the types the code reading it relies on."""
+def _record(header: dict[str, str], path: Path, shape: tuple[int, ...]) -> TicketRecord:
+    """The ticket's record from its header."""
     try:
         metadata = json.loads(header.get(_META_KEY, "{}"))
     except (json.JSONDecodeError, RecursionError) as e:
         reason = "nested too deeply" if isinstance(e, RecursionError) else e
         raise UserError(f"{path}: ticket metadata is not valid JSON ({reason})") from None
-    if not isinstance(metadata, dict):
-        raise UserError(f"{path}: ticket metadata must be a JSON object")
-    for key in _STRINGS:
-        if not isinstance(metadata.get(key, ""), str):
-            raise UserError(f"{path}: metadata {key} must be a string, got {type(metadata[key]).__name__}")
-    tasks = metadata.get("tasks")
-    if tasks is not None:
-        if not (isinstance(tasks, list) and tasks and all(isinstance(t, str) for t in tasks)):
-            raise UserError(f"{path}: metadata tasks must be a list of task names, got {tasks!r:.60}")
-        if "task" not in metadata:
-            raise UserError(f"{path}: metadata has tasks but no task")
-    steps = metadata.get("max_steps")
-    if steps is not None and not (type(steps) is int and steps > 0):
-        raise UserError(f"{path}: metadata max_steps must be an integer > 0, got {steps!r:.40}")
-    if not isinstance(metadata.get("success"), str | None):
-        raise UserError(f"{path}: metadata success must be an import string or null")
-    span = metadata.get("search_seeds")
-    if span is not None and not (isinstance(span, list) and len(span) == 2
-                                 and all(type(s) is int and s >= 0 for s in span) and span[0] <= span[1]):
-        raise UserError(f"{path}: metadata search_seeds must be [first, last] seeds, got {span!r:.60}")
-    return metadata
+    return TicketRecord.from_metadata(metadata, str(path), shape)
 
 
 def zero_ticket(shape: tuple[int, int]) -> Ticket:
     """The all-zeros ticket: the mean of the Gaussian prior, a natural baseline."""
-    return Ticket(np.zeros(shape, dtype=np.float32), {"method": "zero"})
+    return Ticket(np.zeros(shape, dtype=np.float32), TicketRecord(method="zero"))

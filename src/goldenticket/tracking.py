@@ -14,10 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.config import SearchConfig, to_toml
+from goldenticket.evaluation import to_dicts
 from goldenticket.files import check_target
 from goldenticket.plots import search_png
+from goldenticket.results import MultitaskSummary, Summary
 from goldenticket.ticket_search import Candidate, EpisodeOutcome, Query
-from goldenticket.tickets import Ticket
+from goldenticket.tickets import Ticket, ticket_id
 
 REDRAW_SECONDS = 10.0  # search.png at most this often while the search runs (a drawing takes ~0.3 s)
 
@@ -140,7 +142,7 @@ class Tracker:
         a ticket is named by its id: `expand` makes the ticket of a searched array, for the policy
         `fingerprint`."""
         def name(searched: np.ndarray) -> str:
-            return Ticket(expand(searched), {"policy_fingerprint": fingerprint}).id
+            return ticket_id(expand(searched), fingerprint)
 
         def watched(queries: list[Query]) -> list[EpisodeOutcome]:
             outcomes = evaluate(queries)
@@ -175,18 +177,19 @@ class Tracker:
 
     def validated(self, tickets: list[Ticket]) -> None:
         """The validation score of each ticket that ran on the validation seeds."""
-        self._write(self._rows("validation", [(t.id, "score", t.metadata["validation_score"])
-                                              for t in tickets if "validation_score" in t.metadata]))
+        self._write(self._rows("validation", [(t.id, "score", t.record.validation_score)
+                                              for t in tickets if t.record.validation_score is not None]))
 
-    def finish(self, summary: dict) -> None:
-        """Every number of the verdict in `summary` (summary.json), per arm; then close the sinks."""
-        if "average" in summary:  # several tasks: the task average, then each task's own
-            tasks = summary["tasks"].items()
-            rows = self._rows("verdict", _numbers(summary["average"])) + [
-                row for task, arms in tasks for row in self._rows("verdict", _numbers(arms), task)]
+    def finish(self, summary: Summary | MultitaskSummary) -> None:
+        """Every number of the verdict (as summary.json has it), per arm; then close the sinks."""
+        if isinstance(summary, MultitaskSummary):  # the task average, then each task's own
+            verdict = summary.verdict
+            rows = self._rows("verdict", _numbers(to_dicts(verdict.average))) + [
+                row for task, arms in verdict.tasks.items() 
+                for row in self._rows("verdict", _numbers(to_dicts(arms)), task)]
         else:
-            arms = {"base": summary["base"], "zero": summary["zero"]}
-            rows = self._rows("verdict", _numbers(arms | {t["ticket_id"]: t for t in summary["tickets"]}))
+            arms = {"base": summary.base.to_dict(), "zero": summary.zero.to_dict()}
+            rows = self._rows("verdict", _numbers(arms | {t.id: t.to_dict() for t in summary.tickets}))
         self._write(rows)
         self._close()
 

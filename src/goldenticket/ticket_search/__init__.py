@@ -1,5 +1,7 @@
-"""Black-box search for golden tickets: pure ask/tell optimizers and the budgeted driver."""
+"""Black-box search for golden tickets: pure ask/tell optimizers, the budgeted driver and its adapter
+to whatever runs episodes."""
 
+from goldenticket.ticket_search.adapter import query_evaluator
 from goldenticket.ticket_search.driver import (
     Candidate,
     EpisodeOutcome,
@@ -33,5 +35,6 @@ __all__ = [
     "ZerothOrder",
     "hyper_parameters",
     "make_optimizer",
+    "query_evaluator",
     "run_search",
 ]

@@ -1,0 +1,99 @@
+"""The `evaluate` command: tickets against the base and the zero ticket on held-out seeds, under
+the settings they were found with."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from tqdm import tqdm
+
+from goldenticket.config import EvaluateConfig, named
+from goldenticket.errors import OptionError
+from goldenticket.evaluation import Evaluator, VerdictRow, adjust_for_multiplicity, judge
+from goldenticket.factories import is_import_string
+from goldenticket.job.names import Names
+from goldenticket.noise import Constant, Gaussian, TopK
+from goldenticket.policies import find_ticket, load_policy
+from goldenticket.store import RunStore
+from goldenticket.studies.diversity import action_spread
+from goldenticket.tasks import get_task
+from goldenticket.tasks.base import require_heldout, require_unseen
+from goldenticket.tickets import Ticket, zero_ticket
+
+
+def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict[str, VerdictRow]:
+    """Base, zero ticket and each ticket on the held-out `cfg.seeds`: one-sided paired p-values vs
+    base and vs zero, Holm-adjusted over the tickets; episodes kept in `store` if given. The task,
+    `max_steps` and `success` default to those the tickets were found under; a ticket found for
+    another policy or task, or a setting that contradicts its own, is refused unless
+    `allow_transfer`. `mixture` adds an arm that draws one of the tickets at every policy call
+    (Gaussian noise with probability `epsilon`), and gives every arm its `diversity`
+    (`studies.diversity.action_spread` on the first 10 seeds)."""
+    cfg.check()
+    seeds = list(cfg.seeds)
+    require_heldout(seeds)
+    policy = load_policy(cfg.policy)
+    loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape)
+              for path in map(find_ticket, cfg.tickets)}
+    given = {"task": cfg.task, "max_steps": cfg.max_steps, "success": cfg.success}
+    settings = found_under(list(loaded.values()), given, cfg.allow_transfer)
+    task = get_task(settings["task"], settings["max_steps"], settings["success"])
+    names = Names.of(cfg.policy, policy, task.name)
+    for path, ticket in loaded.items():
+        if not cfg.allow_transfer:
+            ticket.check_fits(names.fingerprint, names.task, str(path))
+        if (searched := ticket.search_seeds()) is not None:
+            require_unseen(seeds, searched, f"search seeds of {path}")
+    tickets = list({t.id: t for t in loaded.values()}.values())  # a ticket named twice is judged once
+    if cfg.mixture and len(tickets) < 2:
+        raise OptionError("mixture needs at least 2 different tickets (tickets A and B)", "mixture")
+    task.check()
+    zero = Constant(zero_ticket(policy.noise_shape).noise)
+    reseeded = {"base": lambda r: Gaussian(cfg.seed + r), "zero": lambda r: zero}
+    reseeded |= {t.id: lambda r, t=t: Constant(t.noise) for t in tickets}
+    if cfg.mixture:
+        stacked = np.stack([t.noise for t in tickets])
+        reseeded["mixture"] = lambda r: TopK(stacked, cfg.seed + r, cfg.epsilon)
+    sources = {label: source(0) for label, source in reseeded.items() if label != "base"}
+    with Evaluator.open(cfg.policy, task, cfg, store, loaded=policy) as evaluator, \
+            evaluator.progress(len(seeds) * (len(sources) + 1), "evaluating"):
+        judged = judge(evaluator, sources, seeds, Gaussian(cfg.seed))
+    adjust_for_multiplicity(judged, [label for label in sources if label != "zero"])
+    rows = {label: j.row() for label, j in judged.items()}
+    if cfg.mixture:
+        for label, source in tqdm(reseeded.items(), desc="diversity", unit="arm"):
+            rows[label] = replace(rows[label], diversity=action_spread(policy, task, source, seeds[:10]))
+    return rows
+
+
+def found_under(tickets: list[Ticket], given: dict, allow_transfer: bool = False) -> dict:
+    """The task, max_steps and success to judge `tickets` under: each as `given` where given (not
+    None), else as the tickets record they were found and judged under (None where they record
+    nothing). UserError when the tickets disagree on an unset one, when no task is known, when a
+    given one contradicts a ticket's, unless `allow_transfer`, and when an unset one would be code
+    a ticket names (a factory or predicate): a shared file never runs code."""
+    settings = {}
+    for key, value in given.items():
+        recorded = {}  # value -> the first ticket recording it
+        for ticket in tickets:
+            meta = ticket.metadata  # as its file has it: a recorded null counts
+            if key in meta and not (key == "task" and "tasks" in meta):
+                recorded.setdefault(meta[key], ticket.id)
+        given_value = named(value) if key != "max_steps" else value
+        if value is None and len(recorded) > 1:
+            found = ", ".join(map(str, recorded))
+            raise OptionError(f"the tickets were found under different {key} ({found}); give {key}", key)
+        clash = [(v, t) for v, t in recorded.items() if value is not None and v != given_value]
+        if clash and not allow_transfer and key != "task":  # a task mismatch: check_fits says it
+            raise OptionError(f"{key} {given_value} contradicts ticket {clash[0][1]}, found and judged with "
+                              f"{key} {clash[0][0]}; leave {key} out to use the ticket's, or "
+                              "allow_transfer to run it anyway", key, "allow_transfer")
+        settings[key] = value if value is not None else next(iter(recorded), None)
+        if value is None and isinstance(settings[key], str) and is_import_string(settings[key]):
+            raise OptionError(f"ticket {recorded[settings[key]]} names {settings[key]!r}, code of its own, as "
+                              f"its {key}; a ticket does not run code: give {key} to run it", key)
+    if settings["task"] is None:
+        raise OptionError("no task given and no ticket names one; give task", "task")
+    return settings
+

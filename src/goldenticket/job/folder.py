@@ -1,0 +1,104 @@
+"""The run folder: its store and config, claimed before anything runs; the tickets, summary.json
+and pictures written once the verdict is in."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import fields
+from pathlib import Path
+
+from goldenticket.config import SearchConfig, named, to_toml
+from goldenticket.errors import UserError
+from goldenticket.evaluation import Judged, adjust_for_multiplicity, multitask_verdict, to_dicts
+from goldenticket.files import open_folder, write_atomic
+from goldenticket.job.names import Names, search_title
+from goldenticket.plots import arms_png, search_png, tasks_png
+from goldenticket.results import FoundTicket, MultitaskSummary, SearchRun, Summary
+from goldenticket.store import RunStore
+from goldenticket.ticket_search import SearchResult
+from goldenticket.tickets import ZERO_SOURCE, Ticket
+
+
+def open_store(out: str | Path, cfg: SearchConfig, names: Names) -> RunStore:
+    """The run store in `out`, holding this config (the policy's fingerprint included: a policy
+    retrained in place is another run)."""
+    open_folder(out)
+    out = Path(out)
+    store = RunStore(out / "run.sqlite")
+    config = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in ("max_nonfinite", "log")} | {
+        "policy": names.policy, "task": names.task, "success": named(cfg.success),
+        "policy_fingerprint": names.fingerprint,
+        "workers": None, "backend": None, "address": None}  # where episodes run does not change them
+    if not store.claim_config(config):
+        store.close()
+        raise UserError(f"{out} holds a different run; choose another output folder or the same options")
+    write_atomic(out / "config.toml", to_toml(cfg))
+    return store
+
+
+def ticket_path(out: Path, ticket: Ticket) -> Path:
+    return out / "tickets" / f"{ticket.id}.safetensors"
+
+
+def save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, span: tuple[int, int],
+                fronts: dict[str, dict]) -> tuple[FoundTicket, ...]:
+    """Save each ticket with its held-out result (and its place on the Pareto front, `fronts` by
+    ticket id, if it has one); best first: by success, the zero ticket before any ticket it ties
+    (it needs no search, so a tie is no evidence for the other), then by p."""
+    ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate,
+                                            t.record.source != ZERO_SOURCE, judged[t.id].p_vs_base))
+    found = []
+    for t in ranked:
+        row = judged[t.id].row()
+        t = t.with_record(heldout=row.to_dict() | {"seeds": list(span)},
+                          front=fronts.get(t.id, t.record.front))
+        path = t.save(ticket_path(out, t))
+        found.append(FoundTicket(t.id, str(path), t.record.search_score, row, t.record.validation_score,
+                                 t.record.source, t))
+    return tuple(found)
+
+
+def summary(names: Names, judged: dict[str, Judged], tickets: list[Ticket], run: SearchRun, out: Path,
+            fronts: dict[str, dict], front=None) -> Summary:
+    """One task's verdict: p-values Holm-adjusted over the tickets, each ticket saved with its
+    held-out result, the best first."""
+    adjust_for_multiplicity(judged, [t.id for t in tickets])
+    found = save_ranked(tickets, judged, out, run.heldout_seeds, fronts)
+    return Summary(names.task, run, judged["base"].row(), judged["zero"].row(), found, front)
+
+
+def multitask_summary(cfg: SearchConfig, per_task: dict[str, dict[str, Judged]], tickets: list[Ticket],
+                      run: SearchRun, out: Path) -> MultitaskSummary:
+    """Several tasks' verdict (`evaluation.multitask_verdict`), each ticket saved with its
+    task-averaged and per-task held-out results and its validation score."""
+    verdict = multitask_verdict(per_task, [t.id for t in tickets], cfg.no_regression)
+    for ticket in tickets:
+        per_task_rows = {task: verdict.tasks[task][ticket.id].to_dict() for task in per_task}
+        ticket.with_record(heldout=verdict.average[ticket.id].to_dict() | {
+            "seeds": list(run.heldout_seeds), "per_task": per_task_rows}).save(ticket_path(out, ticket))
+    validation = {t.id: t.record.validation_score for t in tickets if t.record.validation_score is not None}
+    return MultitaskSummary(verdict, run, validation)
+
+
+def write_summary(result: Summary | MultitaskSummary, out: Path) -> None:
+    write_atomic(out / "summary.json", json.dumps(result.to_dict(), indent=2) + "\n")
+
+
+def pictures(cfg: SearchConfig, names: Names, result: Summary | MultitaskSummary, search: SearchResult,
+             place: dict[str, int], validated: bool, base_return: float, out: Path) -> None:
+    """verdict.png (per arm, or per task and on average) and search.png, with the tickets the
+    job validated and judged marked (`place`: ticket id -> its place in the search)."""
+    title = f"{names.policy} on {names.task}"
+    if isinstance(result, MultitaskSummary):
+        tasks_png(result.verdict, out / "verdict.png",
+                  f"{names.policy}: one ticket for {len(result.verdict.tasks)} tasks")
+        judged, best = result.verdict.tickets, result.verdict.best
+    else:
+        arms_png(to_dicts(result.rows()), out / "verdict.png", title, best=f"ticket {result.best.label}")
+        judged, best = [t.id for t in result.tickets], result.best.id
+    span = result.run.heldout_seeds
+    search_png([c.mean_return for c in search.candidates], [c.n for c in search.candidates],
+               out / "search.png", search_title(cfg, names),
+               validated=list(place.values()) if validated else [],
+               judged=[place[t] for t in judged if t in place], chosen=place.get(best),
+               base=(base_return, f"held-out seeds {span[0]}:{span[1] + 1}"))
