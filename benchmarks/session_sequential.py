@@ -20,9 +20,9 @@ Two levels, both at the same alpha:
 Power: the chance of calling a truly better ticket golden; false golden: of calling golden a
 ticket no better than the base. Bernoulli arms: gains of 10, 20 and 40 points around 50%, and
 from base rates of 20, 50 and 80% where the ticket's rate stays at most 100%. The simulators use
-the session's own rules (goldenticket.session.protocol: the race's schedule and trails();
+the session's own rules (goldenticket.session.race: the race's schedule and trails();
 goldenticket.stats: the test and futile()); a check replays 300 simulated races through
-protocol.race and 300 confirm phases through sequential_sign_test and requires the same
+race.race and 300 confirm phases through sequential_sign_test and requires the same
 finalists, episodes and decisions.
 """
 
@@ -37,7 +37,7 @@ import numpy as np
 from results_files import RESULTS, write_results
 from scipy.stats import binom, fisher_exact
 
-from goldenticket.session.protocol import DEFAULT_CONFIRM, DROP_Z, FUTILITY, ROUND, Plan, race, trails
+from goldenticket.session.race import DEFAULT_CONFIRM, DROP_Z, FUTILITY, ROUND, Plan, race, trails
 from goldenticket.stats import (
     futile,
     mixture_log_e,

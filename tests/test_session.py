@@ -1,5 +1,6 @@
 """Real-robot sessions: the protocol, its HTTP API, and a whole session with Meta-World as the robot."""
 
+import itertools
 import json
 import os
 import re
@@ -21,7 +22,7 @@ import pytest
 from goldenticket.errors import UserError
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.rollout import Engine, Episode, rollout
-from goldenticket.session import Plan, ScoreConflict, Session, protocol
+from goldenticket.session import Plan, ScoreConflict, Session, store
 from goldenticket.tasks import get_task
 from goldenticket.tickets import Ticket
 
@@ -66,11 +67,11 @@ def test_protocol_scores_once_undoes_and_resumes(tmp_path):
     confirm = arms[5:]
     assert len(confirm) == 9 and confirm.count("base") == 3 and len(set(confirm)) == 3
     verdict = session.status()["verdict"]
-    assert set(verdict["arms"]) == set(confirm)
-    assert all(r.get("test", "").startswith("Fisher") for a, r in verdict["arms"].items() if a != "base")
+    assert set(verdict.arms) == set(confirm)
+    assert all(v.test.startswith("Fisher") for a, v in verdict.arms.items() if a != "base")
     saved = {p.stem for p in (tmp_path / "tickets").glob("*.safetensors")}
-    assert saved == set(verdict["arms"]) - {"base"}
-    assert Ticket.load(tmp_path / "tickets" / f"{saved.pop()}.safetensors").id in verdict["arms"]
+    assert saved == set(verdict.arms) - {"base"}
+    assert Ticket.load(tmp_path / "tickets" / f"{saved.pop()}.safetensors").id in verdict.arms
 
 
 def test_base_arm_noise_is_fresh_per_call_from_the_given_seed(tmp_path):
@@ -90,7 +91,7 @@ def test_scene_ids_pair_the_confirm_episodes(tmp_path):
             scenes[due.ticket_id] = scenes.get(due.ticket_id, 0) + 1
             scene = f"layout-{scenes[due.ticket_id]}"
         session.score(due.episode, due.ticket_id != "base", scene=scene)
-    tests = {r["test"] for a, r in session.verdict()["arms"].items() if a != "base"}
+    tests = {v.test for a, v in session.verdict().arms.items() if a != "base"}
     assert tests == {"paired exact McNemar (sign) test on scene ids"}
 
 
@@ -182,7 +183,7 @@ def test_a_simulated_robot_and_operator_reach_the_automatic_verdict(tmp_path):
             results = engine.evaluate([Episode(_source(d, plan.seed), d["episode"]) for d in dues])
             for r, res in zip(planned, results, strict=True):
                 automatic.score(r["episode"], res.success)
-    assert automatic.verdict() == http_verdict
+    assert automatic.verdict().to_dict() == http_verdict
     assert 0 < sum(r["success"] for r in automatic.scores()) < len(automatic.scores())
 
 
@@ -315,7 +316,7 @@ def test_only_the_due_episode_is_scored(tmp_path):
 def test_undo_names_its_episode_and_follows_the_order_of_entry(tmp_path, monkeypatch):
     session = Session.new(tmp_path, _plan())
     clock = iter([100.0, 50.0, 75.0])  # the wall clock steps back between scores
-    monkeypatch.setattr(protocol, "time", SimpleNamespace(time=lambda: next(clock)))
+    monkeypatch.setattr(store, "time", SimpleNamespace(time=lambda: next(clock)))
     for episode in range(3):
         session.score(episode, True)
     with pytest.raises(ScoreConflict, match="not the last") as stale:
@@ -405,13 +406,23 @@ def test_session_new_bounds_its_plan_in_one_line(tmp_path, capsys):
         _plan(tickets=10**9)
 
 
+def test_session_new_names_its_own_flags_in_its_errors(tmp_path, capsys):
+    from goldenticket.cli import main
+
+    for count in ("1", "100000"):
+        assert main(["session", "new", "--policy", POLICY, "--out", str(tmp_path), "--tickets", count]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert "--tickets must be at least 2" in errors[0] and "(--tickets x --episodes-per-ticket" in errors[1]
+    assert not any("--ticket " in line for line in errors)
+
+
 def test_a_finished_session_writes_its_verdict_beside_its_store(tmp_path):
     session = Session.new(tmp_path / "cup", _plan())
     while (due := session.next()) is not None:
         session.score(due.episode, due.ticket_id != "base")
     summary = json.loads((tmp_path / "cup" / "summary.json").read_text())
-    assert summary["verdict"] == session.verdict() and summary["session"] == "cup"
-    assert set(summary["tickets"]) == set(session.verdict()["arms"]) - {"base"}
+    assert summary["verdict"] == session.verdict().to_dict() and summary["session"] == "cup"
+    assert set(summary["tickets"]) == set(session.verdict().arms) - {"base"}
     assert (tmp_path / "cup" / "verdict.png").read_bytes().startswith(b"\x89PNG")
     status = _client(tmp_path / "cup").get("/api/status").json()
     assert status["session"] == "cup" and status["policy"] == "p"
@@ -482,3 +493,137 @@ def test_a_session_stored_before_entry_numbers_opens_and_undoes_its_last_score(t
     assert reopened.status()["scored"] == 3 and reopened.status()["last_scored"] == last
     reopened.undo(last)
     assert reopened.next().episode == last
+
+
+def _scene_by_arm(due, runs: dict[str, int]) -> str:
+    """A scene id that pairs each arm's k-th confirm episode with the other arms' k-th."""
+    runs[due.ticket_id] = runs.get(due.ticket_id, 0) + 1
+    return f"layout {runs[due.ticket_id]}"
+
+
+def _scene_by_pair(due, runs: dict[str, int]) -> str:
+    return f"layout {due.episode // 2}"
+
+
+def _mostly_tickets(due) -> bool:
+    return due.ticket_id != "base" or due.episode % 3 == 0
+
+
+def _mostly_base(due) -> bool:
+    return due.ticket_id == "base" or due.episode % 4 == 0
+
+
+_FIXED_PAIRED = {"session": "cup",
+                 "plan": {"policy": "p", "policy_fingerprint": "fp", "noise_shape": [8, 4], "tickets": 3,
+                          "episodes_per_ticket": 2, "confirm": 5, "seed": 5, "stopping": "fixed",
+                          "alpha": 0.05},
+                 "search_successes": {"c30a7c35a742": 2, "6f4d83c10292": 2, "e8177d15f3e8": 2},
+                 "search_episodes": {"c30a7c35a742": 2, "6f4d83c10292": 2, "e8177d15f3e8": 2},
+                 "tickets": {"6f4d83c10292": "tickets/6f4d83c10292.safetensors",
+                             "c30a7c35a742": "tickets/c30a7c35a742.safetensors"},
+                 "verdict": {"arms": {"base": {"success_rate": 0.4, "ci_low": 0.11762077423264794,
+                                               "ci_high": 0.769275718723987, "n": 5},
+                                      "6f4d83c10292": {"success_rate": 1.0, "ci_low": 0.5655175352168251,
+                                                       "ci_high": 1.0, "n": 5, "p_vs_base": 0.25,
+                                                       "test": ("paired exact McNemar (sign) test on scene "
+                                                                "ids"),
+                                                       "golden": False, "verdict": "not golden"},
+                                      "c30a7c35a742": {"success_rate": 1.0, "ci_low": 0.5655175352168251,
+                                                       "ci_high": 1.0, "n": 5, "p_vs_base": 0.25,
+                                                       "test": ("paired exact McNemar (sign) test on scene "
+                                                                "ids"),
+                                                       "golden": False, "verdict": "not golden"}},
+                             "stopping": {"rule": "fixed", "alpha": 0.05, "episodes": 21,
+                                          "reason": "every planned episode scored",
+                                          "why": "the fixed protocol: all 21 planned episodes scored"},
+                             "note": ("p-values: paired exact McNemar (sign) test on scene ids; one-sided, "
+                                      "finalist better than base, Holm-adjusted over the 2 finalists; "
+                                      "'golden' means p < 0.05")}}
+_SEQUENTIAL_PAIRED = {"session": "cup",
+                      "plan": {"policy": "p", "policy_fingerprint": "fp", "noise_shape": [8, 4],
+                               "tickets": 3, "episodes_per_ticket": 4, "confirm": 8, "seed": 2,
+                               "stopping": "sequential", "alpha": 0.05},
+                      "race": {"first_round": 4, "round": 2, "drop_z": 1.5},
+                      "search_successes": {"359ade34fdeb": 4, "4f5e361bc84f": 4, "32bb36b10584": 4},
+                      "search_episodes": {"359ade34fdeb": 4, "4f5e361bc84f": 4, "32bb36b10584": 4},
+                      "tickets": {"359ade34fdeb": "tickets/359ade34fdeb.safetensors"},
+                      "verdict": {"arms": {"base": {"success_rate": 0.375, "ci_low": 0.13684428582359737,
+                                                    "ci_high": 0.6942576053973728, "n": 8},
+                                           "359ade34fdeb": {"success_rate": 1.0,
+                                                            "ci_low": 0.6755924351161198, "ci_high": 1.0,
+                                                            "n": 8, "p_vs_base": 0.03125,
+                                                            "test": ("sequential sign test, pairs matched "
+                                                                     "by scene id"),
+                                                            "golden": True, "verdict": "golden"}},
+                                  "stopping": {"rule": "sequential",
+                                               "test": "sequential sign test, pairs matched by scene id",
+                                               "alpha": 0.05, "cap": 8, "threshold": 10.499999999999995,
+                                               "e_value": 10.499999999999995,
+                                               "futility": {"q1": 0.7, "beta": 0.2}, "pairs": 8,
+                                               "ticket_only": 5, "base_only": 0, "episodes": 28,
+                                               "stopped_at": 1027.0, "reason": "cap reached",
+                                               "why": ("cap reached after 8 of at most 8 pairs (28 episodes "
+                                                       "in all): the e-value reached 10.5 (threshold 10.5); "
+                                                       "golden")},
+                                  "note": ("p-value: the sequential sign test, one-sided, ticket better "
+                                           "than base, tested after every pair of the confirm phase; "
+                                           "'golden' means its mixture e-value reached 10.5, which under no "
+                                           "difference happens within 8 pairs with chance below 0.05 (p < "
+                                           "0.05); not golden early once out of reach, or futile (which "
+                                           "stops a ticket that wins 70% of the discordant pairs with "
+                                           "chance at most 0.2)")}}
+_SEQUENTIAL_FUTILE = {"session": "cup",
+                      "plan": {"policy": "p", "policy_fingerprint": "fp", "noise_shape": [8, 4],
+                               "tickets": 4, "episodes_per_ticket": 12, "confirm": 20, "seed": 1,
+                               "stopping": "sequential", "alpha": 0.05},
+                      "race": {"first_round": 10, "round": 2, "drop_z": 1.5},
+                      "search_successes": {"e33f2ca0c068": 4, "7ba9b1b8e4ff": 1, "6fc347d8eecb": 5,
+                                           "1757947ac165": 2},
+                      "search_episodes": {"e33f2ca0c068": 12, "7ba9b1b8e4ff": 10, "6fc347d8eecb": 12,
+                                          "1757947ac165": 12},
+                      "tickets": {"6fc347d8eecb": "tickets/6fc347d8eecb.safetensors"},
+                      "verdict": {"arms": {"base": {"success_rate": 1.0, "ci_low": 0.6096657120978346,
+                                                    "ci_high": 1.0, "n": 6},
+                                           "6fc347d8eecb": {"success_rate": 0.3333333333333333,
+                                                            "ci_low": 0.09677141110578047,
+                                                            "ci_high": 0.700006684861608, "n": 6,
+                                                            "p_vs_base": 1.0,
+                                                            "test": ("sequential sign test, unpaired "
+                                                                     "episodes"),
+                                                            "golden": False, "verdict": "not golden"}},
+                                  "stopping": {"rule": "sequential",
+                                               "test": "sequential sign test, unpaired episodes",
+                                               "alpha": 0.05, "cap": 20, "threshold": 11.255555555555565,
+                                               "e_value": 1.0, "futility": {"q1": 0.7, "beta": 0.2},
+                                               "pairs": 6, "ticket_only": 0, "base_only": 4, "episodes": 58,
+                                               "stopped_at": 1057.0, "reason": "decided early",
+                                               "why": ("decided early after 6 of at most 20 pairs (58 "
+                                                       "episodes in all): the base won 4 of 4 discordant "
+                                                       "pairs: no difference is 5 or more times likelier "
+                                                       "than a ticket winning 70% of them; not golden")},
+                                  "note": ("p-value: the sequential sign test, one-sided, ticket better "
+                                           "than base, tested after every pair of the confirm phase; "
+                                           "'golden' means its mixture e-value reached 11.3, which under no "
+                                           "difference happens within 20 pairs with chance below 0.05 (p < "
+                                           "0.05); not golden early once out of reach, or futile (which "
+                                           "stops a ticket that wins 70% of the discordant pairs with "
+                                           "chance at most 0.2)")}}
+_WRITTEN = {  # a plan, its confirm episodes' scene ids and every outcome, and the summary.json they give
+    "fixed, paired": (dict(confirm=5, seed=5), _scene_by_arm, _mostly_tickets, _FIXED_PAIRED),
+    "sequential, paired, cap reached": (dict(stopping="sequential", episodes_per_ticket=4, confirm=8, seed=2),
+                                        _scene_by_pair, _mostly_tickets, _SEQUENTIAL_PAIRED),
+    "sequential, unpaired, futile": (dict(stopping="sequential", tickets=4, episodes_per_ticket=12,
+                                          confirm=20, seed=1), None, _mostly_base, _SEQUENTIAL_FUTILE)}
+
+
+@pytest.mark.parametrize("case", list(_WRITTEN))
+def test_the_verdict_files_and_answers_are_the_json_written_before(tmp_path, monkeypatch, case):
+    fields, scene, success, written = _WRITTEN[case]
+    clock, runs = itertools.count(1000), {}
+    monkeypatch.setattr(store, "time", SimpleNamespace(time=lambda: float(next(clock))))
+    session = Session.new(tmp_path / "cup", _plan(**fields))
+    while (due := session.next()) is not None:
+        confirm = session.status()["phase"] == "confirm"
+        session.score(due.episode, success(due), scene=scene(due, runs) if scene and confirm else None)
+    assert (tmp_path / "cup" / "summary.json").read_text() == json.dumps(written, indent=2) + "\n"
+    assert _client(tmp_path / "cup").get("/api/status").json()["verdict"] == written["verdict"]

@@ -109,5 +109,5 @@ def test_an_operator_sees_what_is_due_and_why_a_sequential_session_stopped(tmp_p
     finally:
         server.kill()
     verdict = Session(tmp_path).verdict()
-    assert verdict["stopping"]["test"] == "sequential sign test, pairs matched by scene id"
-    assert verdict["stopping"]["pairs"] < 6 and (tmp_path / "summary.json").is_file()
+    assert verdict.stopping.name == "sequential sign test, pairs matched by scene id"
+    assert verdict.stopping.test.pairs < 6 and (tmp_path / "summary.json").is_file()

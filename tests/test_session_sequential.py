@@ -17,7 +17,8 @@ from test_session import _client, _free_port, _plan, _server
 
 from goldenticket import stats
 from goldenticket.errors import OptionError, UserError
-from goldenticket.session import Client, Plan, ScoreConflict, Session, protocol
+from goldenticket.session import Client, Plan, ScoreConflict, Session
+from goldenticket.session import race as rules
 
 POLICY = "metaworld/pick-place-v3/flow"
 
@@ -51,10 +52,10 @@ def test_the_mixture_e_value_is_its_integral_and_the_test_keeps_alpha_exactly():
     assert stats.sequential_level(below, cap) >= alpha  # the threshold is the smallest that keeps alpha
     loose = 0.2  # a threshold in reach long enough for the futility stop to act
     plain, stopped = ([stats.sequential_sign_test(p, [not s for s in p], cap, loose, futility) for p in paths]
-                      for futility in (None, protocol.FUTILITY))
+                      for futility in (None, rules.FUTILITY))
     wins = [sum(t.decision == "golden" for t in tests) / 2 ** cap for tests in (stopped, plain)]
     assert wins[0] <= wins[1] < loose  # it only ever stops not golden
-    q1, beta = protocol.FUTILITY  # Ville: a ticket winning q1 of the discordant pairs is stopped futile
+    q1, beta = rules.FUTILITY  # Ville: a ticket winning q1 of the discordant pairs is stopped futile
     chance = sum(q1 ** sum(p) * (1 - q1) ** (cap - sum(p))  # with chance at most beta
                  for p, t in zip(paths, stopped, strict=True) if t.reason == "futile")
     assert 0 < chance <= beta
@@ -66,12 +67,12 @@ def test_the_mixture_e_value_is_its_integral_and_the_test_keeps_alpha_exactly():
 
 
 def test_the_futility_stop_ends_a_losing_ticket_early():
-    q1, beta = protocol.FUTILITY
+    q1, beta = rules.FUTILITY
     losses = next(n for n in range(1, 20) if n * np.log(2 - 2 * q1) <= np.log(beta))
     ticket, base = [False] * losses, [True] * losses
-    test = stats.sequential_sign_test(ticket, base, 70, 0.05, protocol.FUTILITY)
+    test = stats.sequential_sign_test(ticket, base, 70, 0.05, rules.FUTILITY)
     assert (test.decision, test.reason, test.pairs) == ("not golden", "futile", losses)
-    assert stats.sequential_sign_test(ticket[:-1], base[:-1], 70, 0.05, protocol.FUTILITY).decision is None
+    assert stats.sequential_sign_test(ticket[:-1], base[:-1], 70, 0.05, rules.FUTILITY).decision is None
     assert stats.sequential_sign_test(ticket, base, 70, 0.05).decision is None  # without it: not yet
     with pytest.raises(ValueError, match="futility"):
         stats.futile(1, 1, 0.4, beta)
@@ -81,22 +82,22 @@ def test_the_race_drops_candidates_that_trail_the_leader_and_stops_at_one_or_the
     names = list("abcdef")
 
     def race(plan, wins_by_round):
-        """protocol.race over rounds of {candidate: successes, None: not scored yet}."""
+        """rules.race over rounds of {candidate: successes, None: not scored yet}."""
         search, each = [], plan.first_round
         for wins in wins_by_round:
             search += [(arm, won and i < won) for arm, won in wins.items() for i in range(each)]
-            each = protocol.ROUND
-        return protocol.race(plan, names, search)
+            each = rules.ROUND
+        return rules.race(plan, names, search)
 
-    plan, first = Plan("p", "fp", (2, 2), 6, 25, 70, 0), protocol.FIRST_ROUND
+    plan, first = Plan("p", "fp", (2, 2), 6, 25, 70, 0), rules.FIRST_ROUND
     assert plan.first_round == first and plan.episodes == 6 * 25 + 2 * 70 <= 6 * 25 + 3 * 50
     clear = race(plan, [dict(zip(names, [0, 0, first, 1, 0, 0], strict=True))])
     assert (clear.ends, clear.alive, clear.next_round) == ([6 * first], ["c"], 0)  # one left: over
     even = race(plan, [dict.fromkeys(names, first // 2)])
-    assert (even.alive, even.next_round) == (names, protocol.ROUND)  # nobody trails: all go on
+    assert (even.alive, even.next_round) == (names, rules.ROUND)  # nobody trails: all go on
     close = race(plan, [dict(zip(names, [first, first - 2, 2, 2, 2, 2], strict=True))])
-    assert not protocol.trails(first, first - 2, first) and protocol.trails(first, 2, first)
-    assert close.alive == ["a", "b"] and close.next_round == protocol.ROUND
+    assert not rules.trails(first, first - 2, first) and rules.trails(first, 2, first)
+    assert close.alive == ["a", "b"] and close.next_round == rules.ROUND
     tied = race(Plan("p", "fp", (2, 2), 6, 12, 70, 0), [{"a": first, "b": first} | dict.fromkeys("cdef", 0)]
                 + [{"b": 2, "a": 2}] * 3)  # a and b tie: rounds of 2 x 2 until 6 x 12 is spent
     assert tied.ends == [6 * first + 4 * k for k in range(4)] and tied.ends[-1] + 4 > 6 * 12
@@ -122,7 +123,7 @@ def test_weak_tickets_are_dropped_and_the_finalist_runs_in_blind_pairs(tmp_path)
     search = [r for r in scores if r["phase"] == "search"]
     ran = {arm: sum(r["arm"] == arm for r in search) for arm in {r["arm"] for r in search}}
     weak = (set(ran) - {best, rival}).pop()
-    first, each = session.plan.first_round, protocol.ROUND
+    first, each = session.plan.first_round, rules.ROUND
     assert ran[weak] == first < ran[rival] <= ran[best] and (ran[best] - first) % each == 0
     assert len(search) < session.plan.tickets * session.plan.episodes_per_ticket  # the race ended early
     assert {"search phase, round 1, 3 tickets left", "search phase, round 2, 2 tickets left"} <= set(stages)
@@ -138,23 +139,24 @@ def test_a_clearly_better_ticket_stops_the_session_early(tmp_path):
     session = Session.new(tmp_path, _sequential())
     _play(session, lambda due, status: due.ticket_id != "base")
     status = session.status()
-    verdict, stopping = status["verdict"], status["verdict"]["stopping"]
-    finalist = next(a for a in verdict["arms"] if a != "base")
-    assert verdict["arms"][finalist]["verdict"] == "golden" and verdict["arms"][finalist]["p_vs_base"] < 0.05
+    verdict, stopping = status["verdict"], status["verdict"].stopping
+    finalist = next(a for a in verdict.arms if a != "base")
+    assert verdict.arms[finalist].golden and verdict.arms[finalist].row.p_vs_base < 0.05
     threshold = stats.sequential_threshold(20, 0.05)
     needed = next(k for k in range(1, 21) if stats.mixture_log_e(k, 0) >= threshold)
-    assert stopping["reason"] == "decided early" and stopping["pairs"] == needed < 20
+    assert stopping.reason == "decided early" and stopping.test.pairs == needed < 20
     search = session.plan.tickets * session.plan.episodes_per_ticket  # no ticket trails: the whole budget
-    assert stopping["ticket_only"] == needed and stopping["episodes"] == search + 2 * needed
-    assert status["due"] is None and status["scored"] == stopping["episodes"] < status["total"]
+    assert stopping.test.ticket_only == needed and stopping.episodes == search + 2 * needed
+    assert status["due"] is None and status["scored"] == stopping.episodes < status["total"]
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["verdict"] == verdict and summary["plan"]["stopping"] == "sequential"
+    assert summary["verdict"] == verdict.to_dict() and summary["plan"]["stopping"] == "sequential"
     assert summary["verdict"]["stopping"]["test"].startswith("sequential sign test")
     assert set(summary["search_episodes"].values()) == {session.plan.episodes_per_ticket}
-    assert summary["race"] == {"first_round": 4, "round": protocol.ROUND, "drop_z": protocol.DROP_Z}
-    assert stopping["futility"] == dict(zip(("q1", "beta"), protocol.FUTILITY, strict=True))
+    assert summary["race"] == {"first_round": 4, "round": rules.ROUND, "drop_z": rules.DROP_Z}
+    futility = summary["verdict"]["stopping"]["futility"]
+    assert futility == dict(zip(("q1", "beta"), rules.FUTILITY, strict=True))
     with pytest.raises(ScoreConflict, match="the session is complete"):
-        session.score(stopping["episodes"], True)
+        session.score(stopping.episodes, True)
     session.undo(status["last_scored"])  # the decision is undone with its last score
     assert session.status()["due"] == status["last_scored"] and not (tmp_path / "summary.json").exists()
 
@@ -164,10 +166,10 @@ def test_equal_arms_reach_the_cap_or_lose_hope_and_are_not_golden(tmp_path):
     session = Session.new(tmp_path, _sequential())
     _play(session, lambda due, status: bool(coin.random() < 0.5))
     verdict = session.verdict()
-    (finalist,), stopping = set(verdict["arms"]) - {"base"}, verdict["stopping"]
-    assert verdict["arms"][finalist]["verdict"] == "not golden"
-    assert stopping["e_value"] < stopping["threshold"]
-    assert stopping["reason"] in ("decided early", "cap reached")
+    (finalist,), stopping = set(verdict.arms) - {"base"}, verdict.stopping
+    assert verdict.arms[finalist].decision == "not golden"
+    assert stopping.test.e_value < stopping.test.threshold
+    assert stopping.reason in ("decided early", "cap reached")
 
 
 def test_scene_ids_on_both_runs_of_a_pair_make_the_test_paired(tmp_path):
@@ -177,7 +179,7 @@ def test_scene_ids_on_both_runs_of_a_pair_make_the_test_paired(tmp_path):
             confirm = due.episode if confirm is None else confirm
         scene = None if confirm is None else f"layout {(due.episode - confirm) // 2}"
         session.score(due.episode, due.ticket_id != "base", scene=scene)
-    assert session.verdict()["stopping"]["test"] == "sequential sign test, pairs matched by scene id"
+    assert session.verdict().stopping.name == "sequential sign test, pairs matched by scene id"
 
 
 def test_the_plan_is_a_function_of_the_seed_and_the_scores(tmp_path):
@@ -239,7 +241,7 @@ def test_session_new_takes_the_stopping_rule_and_alpha(tmp_path, capsys):
         main(["session", "new", "--help"])
     text = " ".join(capsys.readouterr().out.split())  # every placeholder filled, the plan's defaults
     assert "%(" not in text and "%%" not in text and text.count("{") == text.count("{sequential,fixed}")
-    assert f"(default {protocol.DEFAULT_CONFIRM['sequential']}, so never more episodes than fixed)" in text
+    assert f"(default {rules.DEFAULT_CONFIRM['sequential']}, so never more episodes than fixed)" in text
 
 
 def test_the_http_api_says_what_is_due_and_why_the_session_stopped(tmp_path):

@@ -95,10 +95,11 @@ class TicketRecord:
 
     def to_metadata(self) -> dict:
         """The record as the file's JSON: unset fields left out, except `success` for a ticket that
-        names its policy and `search_score` for one whose source is known (null: not searched)."""
+        names its task (null: the task's own signal) and `search_score` for one whose source is
+        known (null: not searched)."""
         meta = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "extra"}
         meta = {k: list(v) if isinstance(v, tuple) else v for k, v in meta.items() if v is not None}
-        if self.policy_fingerprint is not None:
+        if self.task is not None:
             meta["success"] = self.success
         if self.source is not None:
             meta["search_score"] = self.search_score

@@ -1,7 +1,10 @@
-"""Real-robot search sessions scored by a person: the protocol and its store, the web app, and
-the robot's client."""
+"""Real-robot search sessions scored by a person: the plan and its race, the store, the verdict,
+the web app, and the robot's client."""
 
 from goldenticket.session.client import Client
-from goldenticket.session.protocol import NextEpisode, Plan, ScoreConflict, Session, StoreLost
+from goldenticket.session.episode import NextEpisode
+from goldenticket.session.race import Plan
+from goldenticket.session.store import ScoreConflict, Session, StoreLost
+from goldenticket.session.verdict import SessionVerdict
 
-__all__ = ["Client", "NextEpisode", "Plan", "ScoreConflict", "Session", "StoreLost"]
+__all__ = ["Client", "NextEpisode", "Plan", "ScoreConflict", "Session", "SessionVerdict", "StoreLost"]

@@ -19,7 +19,8 @@ import urllib.error
 import urllib.request
 
 from goldenticket.errors import UserError
-from goldenticket.session.protocol import NextEpisode, ScoreConflict
+from goldenticket.session.episode import NextEpisode
+from goldenticket.session.store import ScoreConflict
 
 
 class Client:

@@ -12,8 +12,8 @@
     GET  /            -> the operator's page (never shows which arm runs)
 
 Every error is JSON, {"error": message}: 400 a malformed request, 401 no token, 403 another
-site, 413 a body over 64 KiB, 415 a POST that is not JSON, 503 the store cannot save (its file
-deleted, a full disk).
+site, 404 no such path (or no verdict yet), 405 a method the path does not take, 413 a body over
+64 KiB, 415 a POST that is not JSON, 503 the store cannot save (its file deleted, a full disk).
 
 No other web site can use the API through a browser: the Host header must name this server (no
 DNS rebinding), an Origin header must be this server's own, and a POST must be
@@ -32,7 +32,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from goldenticket.errors import OptionError, UserError
-from goldenticket.session.protocol import ScoreConflict, Session, StoreLost
+from goldenticket.session.store import ScoreConflict, Session, StoreLost
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 ANY_HOST = ("0.0.0.0", "::")
@@ -55,6 +55,7 @@ class _Refused(UserError):
 def make_app(folder: str | Path, token: str | None = None, host: str = "127.0.0.1"):
     """The ASGI app for one session folder, served on `host` (what the Host header must name)."""
     from starlette.applications import Starlette
+    from starlette.exceptions import HTTPException
     from starlette.middleware import Middleware
     from starlette.responses import HTMLResponse, JSONResponse, Response
     from starlette.routing import Route
@@ -80,7 +81,10 @@ def make_app(folder: str | Path, token: str | None = None, host: str = "127.0.0.
         return JSONResponse({"undone": episode})
 
     async def status(request):
-        return JSONResponse({**session.status(), "session": session.name, "policy": session.plan.policy})
+        status = session.status()
+        if "verdict" in status:
+            status["verdict"] = status["verdict"].to_dict()
+        return JSONResponse({**status, "session": session.name, "policy": session.plan.policy})
 
     async def verdict_png(request):
         if "verdict" not in session.status():
@@ -91,8 +95,9 @@ def make_app(folder: str | Path, token: str | None = None, host: str = "127.0.0.
               Route("/api/score", score, methods=["POST"]), Route("/api/undo", undo, methods=["POST"]),
               Route("/verdict.png", verdict_png)]
     hosts = None if host in ANY_HOST else {host.lower(), *LOCAL_HOSTS}
+    handlers = {kind: _answer(code) for kind, code in _STATUS.items()} | {HTTPException: _http_error}
     app = Starlette(routes=routes, middleware=[Middleware(_Guard, hosts=hosts, token=token)],
-                    exception_handlers={kind: _answer(code) for kind, code in _STATUS.items()})
+                    exception_handlers=handlers)
     app.state.session = session
     return app
 
@@ -133,6 +138,20 @@ def _answer(code: int):
                             status_code=getattr(exc, "status", code))
 
     return handler
+
+
+async def _http_error(request, exc):
+    """Starlette's own refusals (no such path, a method the path does not take) as JSON errors."""
+    from starlette.responses import JSONResponse
+
+    where = f"{request.method} {request.url.path}"
+    if exc.status_code == 404:
+        message = f"{where}: no such path (there are /, /verdict.png and /api/next, score, undo, status)"
+    elif exc.status_code == 405:
+        message = f"{where}: the path takes {exc.headers['Allow']} only"
+    else:
+        message = f"{where}: {exc.detail}"
+    return JSONResponse({"error": message}, status_code=exc.status_code, headers=exc.headers)
 
 
 async def _json_body(request):

@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 from goldenticket.errors import UserError
 from goldenticket.report import verdict_table
-from goldenticket.session.protocol import ScoreConflict, Session
+from goldenticket.session.store import ScoreConflict, Session
 
 HELP = "s = success, f = failure (a note may follow: `f gripper slipped`), u = undo the last score, q = quit"
 
@@ -39,9 +39,10 @@ def score_in_terminal(session: Session, read: Callable[[str], str] = input) -> i
             return 0
         else:
             print(HELP)
-    print(verdict_table(status["verdict"]["arms"], title="arm"))
-    print(status["verdict"]["note"])
-    print(f"Stopped: {status['verdict']['stopping']['why']}")
+    verdict = status["verdict"]
+    print(verdict_table(verdict.rows(), title="arm"))
+    print(verdict.note)
+    print(f"Stopped: {verdict.stopping.why}")
     print(f"Wrote summary.json and verdict.png in {session.path.parent}")
     return 0
 
