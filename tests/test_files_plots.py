@@ -15,7 +15,7 @@ from goldenticket.cli import main
 from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
-from goldenticket.workflow import find_golden_tickets
+from goldenticket.job import find_golden_tickets
 
 HERE = Path(__file__).parent
 BYO = ["--policy", "byo_example:make_policy", "--task", "byo_example:make_env", "--max-steps", "10"]
@@ -120,12 +120,13 @@ def test_search_picture_marks_validated_judged_and_chosen_tickets_and_the_base(t
                      chosen=3, base=(0.4, "held-out seeds 1000000:1000010"))
     ax = drawn[0].axes[0]
     assert ax.get_ylabel().startswith("search score")
+    delivered = "delivered (chosen on validation seeds,\nthen best held-out success)"
     assert _legend(ax) == ["ticket, 5 episodes", "best so far (5 episodes)",
                            "base policy on held-out seeds 1000000:1000010", "sent to validation",
-                           "judged on held-out seeds", "chosen ticket (best held-out success)"]
+                           "judged on held-out seeds", delivered]
     assert _points(ax, "sent to validation") == [(2, 0.9), (4, 0.7), (6, 0.8)]
     assert _points(ax, "judged on held-out seeds") == [(4, 0.7), (2, 0.9)]
-    assert _points(ax, "chosen ticket (best held-out success)") == [(4, 0.7)]
+    assert _points(ax, delivered) == [(4, 0.7)]
 
 
 def test_search_picture_tells_tickets_with_fewer_episodes_apart(tmp_path, drawn):
@@ -150,7 +151,8 @@ def test_search_marks_the_tickets_the_run_validated_and_judged(tmp_path, drawn, 
     assert [y for _, y in _points(search, "judged on held-out seeds")] == [
         t.search_score for t in summary.tickets if t.source != "zero ticket"]  # the zero ticket: no search
     chosen = [] if best.source == "zero ticket" else [best.search_score]  # the zero ticket: not searched
-    assert [y for _, y in _points(search, "chosen ticket (best held-out success)")] == chosen
+    delivered = "delivered (chosen on validation seeds,\nthen best held-out success)"
+    assert [y for _, y in _points(search, delivered)] == chosen
     base_line = next(line for line in search.lines if line.get_label().startswith("base policy"))
     assert base_line.get_ydata()[0] == summary.base.rate.success_rate  # objective "success"
 
@@ -165,3 +167,41 @@ def test_existence_figure_titles_fit_in_the_picture(monkeypatch):
     for ax in fig.axes:
         box = ax.title.get_window_extent()
         assert box.x0 >= 0 and box.x1 <= fig.bbox.x1, ax.get_title()
+
+
+def test_search_picture_sets_the_base_apart_from_the_search_scores(tmp_path, drawn):
+    plots.search_png([0.2, 0.9, 0.5], [5] * 3, tmp_path / "s.png", "title",
+                     base=(0.4, "held-out seeds 1000000:1000010"))
+    ax = drawn[0].axes[0]
+    base = next(line for line in ax.lines if line.get_label().startswith("base"))
+    assert base.get_label() == "base policy on held-out seeds 1000000:1000010"
+    assert list(base.get_xdata()) == [1.0] and base.get_linestyle() == "None"  # at the right margin
+    assert base.get_transform().contains_branch_seperately(ax.transData) == (False, True)  # x: axes
+
+
+@pytest.mark.parametrize(("validated", "said"), [([1, 2], "chosen on validation seeds"), ([], "held-out")])
+def test_search_picture_says_how_the_delivered_ticket_was_chosen(tmp_path, drawn, validated, said):
+    plots.search_png([0.2, 0.9, 0.5], [5] * 3, tmp_path / "s.png", "title", validated=validated, judged=[2],
+                     chosen=2)
+    star = next(label for label in _legend(drawn[0].axes[0]) if label.startswith("delivered"))
+    assert said in star and ("validation" in star) == bool(validated)
+
+
+def test_verdict_draws_the_zero_ticket_once(tmp_path, drawn):
+    rows = {"base": _rate(0.5), "zero ticket": _rate(0.55, p_vs_base=0.2, golden=False),
+            "ticket aaa": _rate(0.6, p_vs_base=0.3, golden=False),
+            "ticket 81be (w = 0)": _rate(0.55, p_vs_base=0.4, golden=False)}
+    plots.arms_png(rows, tmp_path / "v.png", "title", best="ticket 81be (w = 0)")
+    ax = drawn[0].axes[0]
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["base", "ticket aaa", "ticket 81be (w = 0)"]
+    assert len(ax.containers) == 3 and _points(ax, "chosen ticket") == [(0.55, 2)]
+    assert "zero ticket" in _legend(ax)  # drawn in the zero ticket's colour
+
+
+def test_verdict_success_axis_stays_within_0_and_100_percent(tmp_path, drawn):
+    rows = {"base": _rate(0.0) | {"ci_low": 0.0}, "ticket aaa": _rate(1.0, golden=True) | {"ci_high": 1.0}}
+    plots.arms_png(rows, tmp_path / "v.png", "title")
+    ax = drawn[0].axes[0]
+    assert ax.spines["bottom"].get_bounds() == (0, 1) and not ax.spines["top"].get_visible()
+    assert all(0 <= tick <= 1 for tick in ax.get_xticks())
+    assert -0.05 < ax.get_xlim()[0] < 0 and 1 < ax.get_xlim()[1] < 1.05  # room for a marker's radius only

@@ -307,7 +307,10 @@ def adjust_for_multiplicity(judged: dict[str, Judged], ticket_ids: list[str]) ->
 
 
 def p_value_note(n_tickets: int) -> str:
-    """How to read the p-values of a verdict over `n_tickets` tickets."""
+    """How to read the p-values of a verdict over `n_tickets` tickets (Holm only when it adjusts
+    something: over one ticket it changes nothing)."""
+    adjusted = {0: "not adjusted", 1: "not adjusted (one ticket tested)"}.get(
+        n_tickets, f"Holm-adjusted over the {n_tickets} tickets tested")
     return ("p-values: one-sided exact McNemar (sign) test on the paired held-out seeds, ticket "
-            "better than base (p vs base) or than the zero ticket (p vs zero), Holm-adjusted over "
-            f"the {n_tickets} tickets tested. 'golden' means p vs base < {ALPHA}.")
+            f"better than base (p vs base) or than the zero ticket (p vs zero), {adjusted}. "
+            f"'golden' means p vs base < {ALPHA}.")

@@ -11,7 +11,9 @@ from matplotlib.container import ErrorbarContainer
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from matplotlib.ticker import PercentFormatter
+from matplotlib.transforms import blended_transform_factory
 
+from goldenticket.evaluation import ZERO_MARK
 from goldenticket.files import write_atomic
 from goldenticket.report import gain_text, short_task
 
@@ -22,33 +24,60 @@ if TYPE_CHECKING:
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 ARMS = {"base": "base (Gaussian noise)", "zero ticket": "zero ticket", "golden": "golden ticket",
         "ticket": "ticket, not golden"}
+LABEL_BOX = {"boxstyle": "square,pad=0.1", "facecolor": "white", "edgecolor": "none"}  # over the base line
 
 
 def arms_png(rows: dict[str, dict], path: Path, title: str, what: str = "held-out success",
              unit: str = "seeds", best: str | None = None) -> Path:
     """One row per arm (base, zero ticket, tickets): held-out success with its 95% Wilson
-    interval; golden tickets in gold, the base rate as a dashed line, the row labelled `best`
-    (the chosen ticket) starred and in bold."""
+    interval on an axis from 0% to 100%; golden tickets in gold, the base rate as a dashed line,
+    the row labelled `best` (the chosen ticket) starred and in bold. The zero ticket judged as a
+    ticket (its label ends in ZERO_MARK) is drawn once, as that ticket, in the zero ticket's colour."""
+    rows = _zero_once(rows)
     fig = Figure(figsize=(8.5, 1.4 + 0.45 * len(rows)))
     ax = fig.subplots()
     for y, (label, r) in enumerate(rows.items()):
-        kind = label if label in COLORS else ("golden" if r.get("golden") else "ticket")
         rate = r["success_rate"]
         ax.errorbar(rate, y, xerr=[[rate - r["ci_low"]], [r["ci_high"] - rate]], fmt="o", capsize=4,
-                    color=COLORS[kind], label=ARMS[kind])
-        ax.annotate(f"{rate:.1%}", (r["ci_high"], y), xytext=(9, -4), textcoords="offset points")
+                    color=COLORS[_kind(label, r)], label=ARMS[_kind(label, r)])
+        ax.annotate(f"{rate:.1%}", (rate, y), xytext=(0, 6), textcoords="offset points", fontsize="small",
+                    ha="left" if rate < 0.1 else "right" if rate > 0.9 else "center", bbox=LABEL_BOX)
     ax.axvline(rows["base"]["success_rate"], color=COLORS["base"], linestyle="--", linewidth=1,
                label="base rate")
     ax.set_yticks(range(len(rows)), list(rows))
     if best in rows:
         _star(ax, rows[best]["success_rate"], list(rows).index(best), "chosen ticket")
         ax.get_yticklabels()[list(rows).index(best)].set_fontweight("bold")
-    n = rows["base"]["n"]  # the limits leave room for a marker at 0%, a "100.0%" label, the end rows
-    ax.set(xlim=(-0.03, 1.2), ylim=(len(rows) - 0.5, -0.5), xticks=[i / 5 for i in range(6)],
+    n = rows["base"]["n"]  # the limits leave room for a marker at 0% or 100% and the first row's rate
+    ax.set(xlim=(-0.04, 1.04), ylim=(len(rows) - 0.5, -0.7), xticks=[i / 5 for i in range(6)],
            title=title, xlabel=f"{what}, 95% Wilson interval (n = {n} {unit})")
-    ax.xaxis.set_major_formatter(PercentFormatter(1.0))
+    _success_axis(ax)
     _legend(ax)
     return _save(fig, path)
+
+
+def _success_axis(ax) -> None:
+    """The x axis drawn from 0% to 100% only: no frame, the bottom spine bounded there."""
+    for side in ("top", "right", "left"):
+        ax.spines[side].set_visible(False)
+    ax.tick_params(axis="y", length=0)
+    ax.spines["bottom"].set_bounds(0, 1)
+    ax.xaxis.set_major_formatter(PercentFormatter(1.0))
+
+
+def _zero_once(rows: dict[str, dict]) -> dict[str, dict]:
+    """`rows` without the zero-ticket arm where the zero ticket is also judged as a ticket."""
+    judged = any(label.endswith(ZERO_MARK) for label in rows)
+    return {label: r for label, r in rows.items() if not (judged and label == "zero ticket")}
+
+
+def _kind(label: str, row: dict) -> str:
+    """The arm's colour and legend entry: base, zero ticket, golden or ticket."""
+    if label in COLORS:
+        return label
+    if row.get("golden"):
+        return "golden"
+    return "zero ticket" if label.endswith(ZERO_MARK) else "ticket"
 
 
 def search_png(scores: list[float], episodes: list[int], path: Path, title: str, *,
@@ -58,7 +87,7 @@ def search_png(scores: list[float], episodes: list[int], path: Path, title: str,
     first tried it, hollow if it ran fewer episodes than the most, and the best so far among
     those with the most. Rings mark the tickets (indices) `validated` and `judged` on held-out
     seeds, a star the `chosen` one (the delivered ticket, if the search found it); `base` is (score,
-    where it was measured)."""
+    where it was measured), drawn at the right margin."""
     fig = Figure(figsize=(9, 4.2))
     ax = fig.subplots()
     full = max(episodes, default=0)
@@ -71,16 +100,18 @@ def search_png(scores: list[float], episodes: list[int], path: Path, title: str,
                        facecolors=face, edgecolors="tab:green", label=label)
     ax.step(order, _best_so_far(scores, episodes, full), where="post", color="goldenrod",
             label=f"best so far ({full} episodes)")
-    if base is not None:
-        ax.axhline(base[0], color=COLORS["base"], linestyle="--", linewidth=1,
-                   label=f"base policy on {base[1]}")
+    if base is not None:  # at the right margin: measured on other seeds than the search's
+        ax.plot([1.0], [base[0]], transform=blended_transform_factory(ax.transAxes, ax.transData),
+                marker="<", markersize=10, linestyle="none", color=COLORS["base"], clip_on=False, zorder=4,
+                label=f"base policy on {base[1]}")
     for marked, size, color, label in ((validated, 90, "black", "sent to validation"),
                                        (judged, 200, "tab:purple", "judged on held-out seeds")):
         if marked:
             ax.scatter([order[i] for i in marked], [scores[i] for i in marked], s=size, facecolors="none",
                        edgecolors=color, linewidths=1.2, label=label)
     if chosen is not None:
-        _star(ax, order[chosen], scores[chosen], "chosen ticket (best held-out success)")
+        how = "chosen on validation seeds,\nthen" if validated else "the"
+        _star(ax, order[chosen], scores[chosen], f"delivered ({how} best held-out success)")
     ax.set_title(title, loc="left")  # a long title runs on over the legend, not off the left edge
     ax.set(xlabel="tickets, in the order tried", ylabel="search score (mean objective)",
            ylim=(min(0, *scores) - 0.05, max(1, *scores) + 0.05))
