@@ -29,6 +29,7 @@ import json, sys
 import goldenticket
 from goldenticket.policies import bundled_tickets
 from goldenticket.tasks import seeds_in
+
 from goldenticket.tickets import Ticket
 
 policy, n = sys.argv[1], int(sys.argv[2])

@@ -37,7 +37,8 @@ import numpy as np
 from results_files import RESULTS, write_results
 from scipy.stats import binom, fisher_exact
 
-from goldenticket.session.race import DEFAULT_CONFIRM, DROP_Z, FUTILITY, ROUND, Plan, race, trails
+from goldenticket.config import DEFAULT_CONFIRM
+from goldenticket.session.race import DROP_Z, FUTILITY, ROUND, Plan, race, trails
 from goldenticket.stats import (
     futile,
     mixture_log_e,
@@ -62,6 +63,7 @@ def real_outcomes(cached: dict) -> dict:
     seed) for the first, as strings of 0/1; reused from `cached` when it holds the same spec."""
     import goldenticket
     from goldenticket.tasks import seeds_in
+
 
     spec = {"pairs": ROBOT, "seeds": SEEDS}
     if cached.get("spec") == json.loads(json.dumps(spec)):

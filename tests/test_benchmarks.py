@@ -138,6 +138,7 @@ def test_dsrl_steers_the_frozen_policy_through_the_noise_space(one_torch_thread)
     from goldenticket.policies import load_policy
     from goldenticket.tasks import get_task, seeds_in
 
+
     policy, task = load_policy("metaworld/reach-v3/flow"), get_task("metaworld/reach-v3", max_steps=12)
     env = dsrl.NoiseSpaceEnv(policy, task, seeds_in("search", 3))
     obs, _ = env.reset()
@@ -156,6 +157,7 @@ def test_dsrl_na_learns_from_executed_chunks_and_resumes(one_torch_thread, tmp_p
 
     from goldenticket.policies import load_policy
     from goldenticket.tasks import get_task, seeds_in
+
 
     policy, task = load_policy("metaworld/reach-v3/flow"), get_task("metaworld/reach-v3", max_steps=12)
     env = dsrl.NoiseSpaceEnv(policy, task, seeds_in("search", 3))

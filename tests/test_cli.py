@@ -8,7 +8,7 @@ import pytest
 from safetensors.numpy import save_file
 
 from goldenticket.cli import main
-from goldenticket.tickets import Ticket
+from goldenticket.tickets import Ticket, TicketRecord
 
 TASK = "metaworld/pick-place-v3"
 
@@ -151,7 +151,7 @@ def test_bad_inputs_exit_2_with_one_line(policy_dir, search_run, tmp_path, capsy
     files = _bad_ticket_files(tmp_path)
     ticket = json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"]
     evaluate = ["evaluate", "--policy", policy_dir, "--task", TASK, "--seeds", "1000000:1000002"]
-    other_policy = Ticket(np.zeros((8, 4)), {"policy_fingerprint": "0123@4", "policy": "x"})
+    other_policy = Ticket(np.zeros((8, 4)), TicketRecord(policy_fingerprint="0123@4", policy="x"))
     cases = {
         "unknown policy": ["evaluate", "--policy", "nope/x/flow", "--task", TASK, "--seeds",
                            "1000000:1000002"],
@@ -192,7 +192,10 @@ def test_bad_inputs_exit_2_with_one_line(policy_dir, search_run, tmp_path, capsy
 
 
 def _with_search_seeds(tmp_path, span):
-    return Ticket(np.zeros((8, 4)), {"search_seeds": span}).save(tmp_path / f"seeds{len(span)}.safetensors")
+    path = tmp_path / f"seeds{len(span)}.safetensors"  # written raw: a bad span must reach Ticket.load
+    save_file({"noise": np.zeros((8, 4), np.float32)}, str(path), metadata={"goldenticket": json.dumps(
+        {"search_seeds": span})})
+    return path
 
 
 def test_policies_lists_bundled_policies_with_measured_numbers(capsys):

@@ -13,9 +13,9 @@ from goldenticket.multitask import greedy_cover
 from goldenticket.policies import MLPPolicy, PolicyConfig
 from goldenticket.results import TransferCell
 from goldenticket.rollout import EpisodeResult
+from goldenticket.seeds import SEED_SETS
 from goldenticket.stats import Rate
 from goldenticket.store import RunStore
-from goldenticket.tasks.base import SEED_SETS
 from goldenticket.tickets import Ticket
 
 TASKS = ["metaworld/reach-v3", "metaworld/drawer-close-v3"]

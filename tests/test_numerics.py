@@ -24,6 +24,7 @@ from goldenticket.policies import load_policy
 from goldenticket.rollout import Episode, rollout
 from goldenticket.tasks import get_task, seeds_in
 
+
 class Recorded:
     def __init__(self, policy):
         self.policy, self.digest = policy, hashlib.sha256()

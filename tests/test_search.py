@@ -147,6 +147,8 @@ def test_cma_es_starts_from_the_mean_it_is_given():
     tickets = np.array([q.ticket for q in asked])
     assert np.abs(tickets.mean(axis=0) - start).max() < 0.2 and tickets.std() < 0.2
     with pytest.raises(UserError, match="noise shape"):
+        make_optimizer("cma-es", SHAPE, SEEDS, np.random.default_rng(0), mean=np.zeros((2, 2)))
+    with pytest.raises(UserError, match="mean must be of type"):  # a start ticket has rows
         make_optimizer("cma-es", SHAPE, SEEDS, np.random.default_rng(0), mean=np.zeros(5))
 
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from goldenticket.errors import UserError
+from goldenticket.seeds import seed_set_of
 from goldenticket.tasks import SEED_SETS, get_task, seeds_in
-from goldenticket.tasks.base import seed_set_of
 
 TASK = "metaworld/pick-place-v3"
 
@@ -60,6 +60,7 @@ def test_bad_task_and_seed_requests_are_user_errors():
 
 def test_objectives_rank_episodes_as_documented():
     from goldenticket.tasks import OBJECTIVES
+
 
     success, discounted, length, tie_broken = (
         OBJECTIVES[k] for k in ("success", "discounted-success", "length", "success-progress"))

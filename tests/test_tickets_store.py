@@ -337,7 +337,8 @@ def test_open_folder_says_what_is_in_the_way(tmp_path, monkeypatch):
              "gone": "output folder gone is a dangling symbolic link (to nowhere); name a folder",
              "loop": "output folder loop is a symbolic link loop; name a folder",
              "loop/run": "output folder loop/run: loop is a symbolic link loop; name a folder",
-             "gone/run": "output folder gone/run: gone is a dangling symbolic link (to nowhere); name a folder",
+             "gone/run": "output folder gone/run: gone is a dangling symbolic link (to nowhere); name a "
+                         "folder",
              "file": "output folder file is a file; name a folder",
              "file/run": "cannot create output folder file/run: Not a directory"}
     for out, message in cases.items():

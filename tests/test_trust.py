@@ -26,7 +26,8 @@ def shared_ticket(tmp_path, **metadata) -> str:
 @pytest.mark.parametrize("metadata, says", [
     ({"task": "spy:touch"}, "names 'spy:touch', code of its own, as its --task"),
     ({"task": ".spy:touch"}, "names '.spy:touch', code of its own, as its --task"),
-    ({"task": "metaworld/reach-v3", "success": "spy:touch"}, "names 'spy:touch', code of its own, as its --success"),
+    ({"task": "metaworld/reach-v3", "success": "spy:touch"},
+     "names 'spy:touch', code of its own, as its --success"),
 ], ids=["a factory", "a relative import string", "a success predicate"])
 def test_evaluate_never_imports_what_a_ticket_names(tmp_path, capsys, monkeypatch, metadata, says):
     (tmp_path / "spy.py").write_text("from pathlib import Path\n"

@@ -9,16 +9,22 @@ import os
 import signal
 import sys
 import time
+import tomllib
 import traceback
+import typing
+from dataclasses import MISSING, fields
 from pathlib import Path
 
 from goldenticket import __version__
 from goldenticket.config import (
-    EngineOptions,
     EvaluateConfig,
     SearchConfig,
+    ServeConfig,
+    SessionConfig,
     TrainConfig,
+    TransferOptions,
     cli_fields,
+    field_types,
     make,
     read_toml,
     seed_range,
@@ -39,16 +45,6 @@ class Interrupted(BaseException):
         self.signum = signum
 
 
-def _seed(text: str) -> int:
-    try:
-        seed = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if seed < 0:
-        raise argparse.ArgumentTypeError(f"seed must be >= 0, got {seed}")
-    return seed
-
-
 def _seed_range(text: str) -> range:
     try:
         return seed_range(text)
@@ -57,14 +53,12 @@ def _seed_range(text: str) -> range:
 
 
 class _HelpFormatter(argparse.HelpFormatter):
-    """Each option's help ends with its default, where it has one worth saying."""
+    """Each option's help ends with "(required)", or with its default where it has one worth saying
+    (the generated flags' help has it already: their argparse default is SUPPRESS)."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        unsaid = action.default is False or action.default in (None, [], argparse.SUPPRESS)
-        if action.required or unsaid or "default" in text:
-            return text
-        return f"{text} (default: {action.default})"
+        required = action.required and bool(action.option_strings)  # not a positional argument
+        return _with_default(action.help or "", action.default, required)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -83,17 +77,35 @@ def _config_flags(p: argparse.ArgumentParser, cls, skip: tuple[str, ...] = (),
         p.add_argument("--config", type=Path, default=None,
                        help="a TOML file of options (keys are the options' names with _, e.g. search_seeds); "
                             "flags override it. Every search writes the one it ran with to --out/config.toml")
-    named, spelled = [g.name for g in cli_fields(cls) if "_" in g.name], spelled_flags()  # plain words stay
+    named = [g.name for g in cli_fields(cls) if "_" in g.name]  # plain words stay
+    spelled = spelled_flags(cls)
     for f in cli_fields(cls, skip):
         cli = dict(f.metadata["cli"])
-        name, required = cli.pop("flag", flag(f.name)), cli.pop("required", False)
-        help_text = flags_in(_help(f, required), named, spelled)
-        kwargs = {"dest": f.name, "default": argparse.SUPPRESS, "help": help_text}
+        name = cli.pop("flag", flag(f.name))
+        help_text = _with_default(f.metadata["help"], f.default, f.default is MISSING)
+        kwargs = {"dest": f.name, "default": argparse.SUPPRESS,
+                  "help": flags_in(help_text, named, spelled).replace("%", "%%")}
         if cli.pop("seed_range", False):
             kwargs["type"] = _seed_range
+        if cli.pop("key_values", False):
+            cli["action"] = _KeyValues
         if cli.get("action") is None:
-            kwargs |= {"action": _Once, "type": kwargs.get("type", _parse_type(f.type))}
+            kwargs |= {"action": _Once, "type": kwargs.get("type", _parse_type(field_types(cls)[f.name]))}
         p.add_argument(name, **kwargs | cli)
+
+
+class _KeyValues(argparse.Action):
+    """KEY=VALUE flags into one dict, each value read as TOML (40, 0.5, [[0, 1]]) or else a string."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        key, equals, text = values.partition("=")
+        if not (key and equals):
+            parser.error(f"{option_string} takes KEY=VALUE, got {values!r}")
+        try:
+            value = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text
+        setattr(namespace, self.dest, getattr(namespace, self.dest, {}) | {key: value})
 
 
 class _Once(argparse.Action):
@@ -105,40 +117,57 @@ class _Once(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
-def _help(f, required: bool) -> str:
-    unsaid = required or any(f.default is v for v in (None, False)) or f.default == () \
-        or "default" in f.metadata["help"]
-    return f.metadata["help"] + ("" if unsaid else f" (default: {f.default})")
+def _with_default(text: str, default, required: bool) -> str:
+    """`text` ending in "(required)", or in `default` unless it is none, false or empty; as it is where
+    it says its default already."""
+    if "(default" in text:
+        return text
+    if required:
+        return f"{text} (required)"
+    if any(default is v for v in (None, False, argparse.SUPPRESS)) or default in ((), []):
+        return text
+    shown = f"{default.start}:{default.stop}" if isinstance(default, range) else default
+    return f"{text} (default: {shown})"
 
 
-def _parse_type(annotation: str):
-    """The command-line type of a field annotated `annotation` (a string: postponed annotations)."""
-    return int if "int" in annotation.split(" | ") else float if annotation == "float" else str
+def _parse_type(hint):
+    """The command-line type of a field of type `hint`: int or float where the hint is one (alone or
+    with None), else str."""
+    kinds = typing.get_args(hint) or (hint,)
+    return next((kind for kind in (int, float) if kind in kinds), str)
+
+
+def _folder(name: str) -> Path:
+    """An output folder's name as typed (Path("") would be the current folder)."""
+    if not name:
+        raise argparse.ArgumentTypeError("empty; name a folder")
+    return Path(name)
 
 
 def _out_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, required=True,
+    p.add_argument("--out", type=_folder, required=True,
                    help="output folder: run.sqlite (every episode; rerun to resume), summary.json, "
                         "tickets/, verdict.png, search.png, config.toml, log.csv")
 
 
-def _options(args, cls) -> dict:
-    """The config's values: the --config file's, then the flags given."""
+def _options(args, cls, skip: tuple[str, ...] = ()) -> dict:
+    """The config's values: the --config file's, then the flags given (but those of `skip`)."""
     values = read_toml(args.config) if getattr(args, "config", None) else {}
-    return values | {f.name: getattr(args, f.name) for f in cli_fields(cls) if hasattr(args, f.name)}
+    return values | {f.name: getattr(args, f.name) for f in cli_fields(cls, skip) if hasattr(args, f.name)}
 
 
 def _transfer_parser(sub) -> None:
     tr = sub.add_parser("transfer", help="one ticket per task of a multi-task policy, each judged on every "
                                          "task: the transfer matrix and the smallest set that covers them")
-    tr.add_argument("--ticket", action="append", default=[],
-                    help="take these tickets (files or bundled ids) instead of searching one per task")
-    _config_flags(tr, SearchConfig, skip=TRANSFER_SKIPS)
+    _config_flags(tr, TransferOptions)
+    own = tuple(f.name for f in fields(TransferOptions))
+    _config_flags(tr, SearchConfig, skip=TRANSFER_SKIPS + own, config_file=False)
     _out_arg(tr)
 
 
 TRANSFER_SKIPS = ("tickets", "top_k", "objective", "front_objective", "stop_after_perfect", "max_tickets",
                   "success", "subspace", "no_regression", "max_nonfinite")
+DEMO_OPTIONS = ("seed", "workers", "backend", "address")  # the demo's flags; the policy and task are its own
 
 
 def _search_parser(sub) -> None:
@@ -157,7 +186,7 @@ def _evaluate_parser(sub) -> None:
 
 def _train_parser(sub) -> None:
     tr = sub.add_parser("train", help="train a policy on imperfect scripted-expert demonstrations")
-    tr.add_argument("--out", type=Path, required=True, help="new policy folder to write")
+    tr.add_argument("--out", type=_folder, required=True, help="new policy folder to write")
     _config_flags(tr, TrainConfig)
 
 
@@ -169,8 +198,8 @@ def _parser() -> argparse.ArgumentParser:
                              "env or success predicate is otherwise one line naming its file and line)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     demo = sub.add_parser("demo", help=f"search and judge a golden ticket for the bundled {DEMO_POLICY}")
-    _config_flags(demo, EngineOptions, skip=("max_nonfinite",), config_file=False)
-    demo.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    skip = tuple(f.name for f in fields(SearchConfig) if f.name not in DEMO_OPTIONS)
+    _config_flags(demo, SearchConfig, skip=skip, config_file=False)
     _out_arg(demo)
     _search_parser(sub)
     _transfer_parser(sub)
@@ -193,35 +222,11 @@ def _session_parser(sub) -> None:
     session_sub = session.add_subparsers(dest="session_command", required=True, parser_class=_Parser)
     new = session_sub.add_parser("new", help="plan a session: N random tickets raced (or K episodes each), "
                                              "then the finalists and the base; at most 100000 episodes")
-    new.add_argument("--policy", required=True,
-                     help="the policy the robot runs (name, folder or import string)")
-    new.add_argument("--out", type=Path, required=True, help="session folder")
-    new.add_argument("--tickets", type=int, default=6, help="candidate tickets (N, at least 2)")
-    new.add_argument("--episodes-per-ticket", type=int, default=25,
-                     help="search episodes per ticket (K); sequential: the race spends at most N x K in all")
-    new.add_argument("--stopping", choices=["sequential", "fixed"], default="sequential",
-                     help="sequential (default): a race runs the tickets in rounds and drops each one that "
-                          "clearly trails the leader, until one is left or N x K search episodes are spent; "
-                          "then it and the base run in pairs until a sequential test decides (at most "
-                          "--confirm pairs). In simulation, 6 x 25 with one ticket 20 to 40 points better "
-                          "than the base: 31-63%% fewer operator episodes than fixed, at equal or higher "
-                          "power; false golden below --alpha (benchmarks/results/session_sequential.md). "
-                          "fixed: the paper's protocol, N x K episodes, then the top 2 and the base on M "
-                          "each")
-    new.add_argument("--alpha", type=float, default=0.05,
-                     help="type-I error: the chance of calling a ticket golden when it is no better")
-    new.add_argument("--confirm", type=int, default=None,
-                     help="confirm episodes per arm (M): fixed, each finalist and the base run M (default "
-                          "50); sequential, at most M pairs of the finalist and the base (default 70, so "
-                          "never more episodes than fixed); N x K + 3 x M (fixed) or + 2 x M is at most "
-                          "100000")
-    new.add_argument("--seed", type=_seed, default=0,
-                     help="seed of the tickets, the order and the base noise")
+    _config_flags(new, SessionConfig, config_file=False)
+    new.add_argument("--out", type=_folder, required=True, help="session folder")
     serve = session_sub.add_parser("serve", help="the operator page and the robot's HTTP API")
     serve.add_argument("folder", type=Path)
-    serve.add_argument("--host", default="127.0.0.1", help="interface; other than local needs --token")
-    serve.add_argument("--port", type=int, default=8765)
-    serve.add_argument("--token", default=None, help="required from every client when set")
+    _config_flags(serve, ServeConfig, config_file=False)
     session_sub.add_parser("score", help="score the session's episodes in this terminal").add_argument(
         "folder", type=Path)
 
@@ -246,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         if args.verbose:
             traceback.print_exception(exc)
-        return _fail(exc.as_flags(spelled_flags()) if isinstance(exc, OptionError) else str(exc))
+        spelled = spelled_flags(*CONFIGS.get(args.command, ()))
+        return _fail(exc.as_flags(spelled) if isinstance(exc, OptionError) else str(exc))
     except BrokenPipeError:  # `goldenticket tickets list | head`: the reader has gone; say nothing
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
@@ -275,34 +281,44 @@ def _fail(message: str) -> int:
 
 
 def _demo(args) -> int:
-    options = _options(args, EngineOptions) | {"seed": args.seed}
-    return _run_search(make(SearchConfig, {"policy": DEMO_POLICY, "task": DEMO_TASK} | options), args.out)
+    options = {"policy": DEMO_POLICY, "task": DEMO_TASK} | _options(args, SearchConfig)
+    return _run_search(make(SearchConfig, options), args.out)
 
 
 def _search(args) -> int:
-    return _run_search(make(SearchConfig, _options(args, SearchConfig)), args.out)
+    return _run_search(make(SearchConfig, _with_bundled_task(_options(args, SearchConfig))), args.out)
+
+
+def _with_bundled_task(options: dict) -> dict:
+    """The options, with the task a bundled single-task policy was trained on where none is given."""
+    from goldenticket.policies.registry import bundled_task
+
+    if "task" in options or not isinstance(options.get("policy"), str):
+        return options
+    task = bundled_task(options["policy"])
+    return options if task is None else options | {"task": task}
 
 
 def _transfer(args) -> int:
     from goldenticket.multitask import transfer
     from goldenticket.report import transfer_text
 
-    options = _options(args, SearchConfig)
-    if "budget" not in options and not args.ticket:
-        raise UserError("transfer needs --budget (search episodes per task) or --ticket")
+    options = _options(args, SearchConfig, skip=("tickets",))
+    own = make(TransferOptions, {"budget": options.get("budget"), "tickets": getattr(args, "tickets", ())})
+    own.check()
     cfg = make(SearchConfig, options)
     if len(cfg.tasks) < 2:
         raise UserError("transfer needs at least two --task")
     start = time.perf_counter()
-    print(transfer_text(transfer(cfg, args.out, args.ticket)))
+    print(transfer_text(transfer(cfg, args.out, list(own.tickets))))
     print(f"Wrote {args.out / 'transfer.json'}, transfer.csv and transfer.png in "
           f"{time.perf_counter() - start:.0f} s.")
     return 0
 
 
 def _run_search(cfg, out: Path) -> int:
+    from goldenticket.job import find_golden_tickets
     from goldenticket.report import multitask_text, verdict_text
-    from goldenticket.workflow import find_golden_tickets
 
     start = time.perf_counter()
     s = find_golden_tickets(cfg, out)
@@ -324,12 +340,12 @@ def _run_search(cfg, out: Path) -> int:
 def _evaluate(args) -> int:
     from goldenticket.evaluation import p_value_note, to_dicts
     from goldenticket.files import check_target
+    from goldenticket.job.evaluate import evaluate_tickets, found_under
     from goldenticket.plots import arms_png
     from goldenticket.policies import find_ticket
     from goldenticket.report import verdict_text
     from goldenticket.results import arm_rows
     from goldenticket.tickets import Ticket
-    from goldenticket.workflow import evaluate_tickets, found_under
 
     cfg = make(EvaluateConfig, _options(args, EvaluateConfig))
     paths = [find_ticket(ref) for ref in cfg.tickets]
@@ -423,28 +439,30 @@ def _session(args) -> int:
     if args.session_command == "new":
         from goldenticket.policies import load_policy, policy_label
         from goldenticket.policies.registry import identity
-        from goldenticket.session.protocol import DEFAULT_CONFIRM
 
-        policy = load_policy(args.policy)
-        label = policy_label(args.policy)
-        confirm = DEFAULT_CONFIRM[args.stopping] if args.confirm is None else args.confirm
-        plan = Plan(label, identity(policy), tuple(policy.noise_shape), args.tickets,
-                    args.episodes_per_ticket, confirm, args.seed, args.stopping, args.alpha)
+        cfg = make(SessionConfig, _options(args, SessionConfig))
+        cfg.check()
+        policy = load_policy(cfg.policy)
+        plan = Plan(policy_label(cfg.policy), identity(policy), tuple(policy.noise_shape), cfg.tickets,
+                    cfg.episodes_per_ticket, cfg.confirm_episodes(), cfg.seed, cfg.stopping, cfg.alpha)
         status = Session.new(args.out, plan).status()
         print(f"Planned {status['planned']} search episodes in {args.out} ({status['stage']}); at most "
-              f"{plan.episodes} episodes in all ({args.stopping} stopping). "
+              f"{plan.episodes} episodes in all ({cfg.stopping} stopping). "
               f"Next: goldenticket session serve {args.out}")
         return 0
     if args.session_command == "serve":
         from goldenticket.session.server import serve
 
-        serve(args.folder, args.host, args.port, args.token)
+        cfg = make(ServeConfig, _options(args, ServeConfig))
+        serve(args.folder, cfg.host, cfg.port, cfg.token)
         return 0
     from goldenticket.session.terminal import score_in_terminal
 
     return score_in_terminal(Session(args.folder))
 
 
+CONFIGS = {"demo": (SearchConfig,), "search": (SearchConfig,), "transfer": (TransferOptions, SearchConfig),
+           "evaluate": (EvaluateConfig,), "train": (TrainConfig,), "session": (SessionConfig, ServeConfig)}
 COMMANDS = {"demo": _demo, "search": _search, "transfer": _transfer, "evaluate": _evaluate, "train": _train,
             "policies": _policies, "tickets": _tickets, "session": _session}
 

@@ -9,28 +9,31 @@ that folder alone: `goldenticket search --config runs/x/config.toml`.
 
 from __future__ import annotations
 
-import copy
+import functools
 import importlib
 import json
 import tomllib
+import typing
 from collections.abc import Callable, Sequence
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
-
-import numpy as np
+from types import UnionType
 
 from goldenticket.errors import OptionError, UserError
 from goldenticket.factories import import_name
-from goldenticket.tasks.base import FRONT_OBJECTIVES, OBJECTIVES
-from goldenticket.ticket_search.optimizers import OPTIMIZERS
+from goldenticket.objectives import FRONT_OBJECTIVES, OBJECTIVES
+from goldenticket.seeds import SEED_SETS
 
 MAX_NONFINITE = 0.1  # default: stop once more than this fraction of an arm's held-out episodes is non-finite
 SINKS = {"tensorboard": "tensorboard", "wandb": "wandb"}  # a `log` sink (tracking.py) -> the package it needs
+SEEDS_END = max(block.stop for block in SEED_SETS.values())  # every seed set lies in 0:SEEDS_END
+DEFAULT_CONFIRM = {"sequential": 70, "fixed": 50}  # a session's confirm episodes per stopping rule (never
+# more episodes under sequential stopping than under fixed)
 
 
 def option(default=MISSING, help: str = "", **cli) -> field:
-    """A config field; `cli` holds how the command line spells it beyond the generated flag
-    (choices, action, its own flag, required there)."""
+    """A config field (one without a default must be given); `cli` holds how the command line spells
+    it beyond the generated flag (choices, action, its own flag)."""
     return field(default=default, metadata={"help": help, "cli": cli})
 
 
@@ -39,6 +42,96 @@ POLICY_HELP = ("bundled policy name (see `goldenticket policies`) or a folder wr
 TASK_HELP = "task name, e.g. metaworld/pick-place-v3, or package.module:factory returning a gymnasium.Env"
 SUCCESS_HELP = ("Gymnasium tasks: package.module:function(obs, info) -> bool deciding success "
                 "(default: info['success'] or info['is_success'])")
+
+
+METHODS: dict[str, type] = {}  # a search method's name -> the dataclass of its settings
+
+
+def method(name: str):
+    """Register the decorated settings dataclass as search method `name`'s (the LeRobot
+    `register_subclass` pattern): `--method name` and `optimizer = {...}` in a config file."""
+    def register(cls):
+        METHODS[name] = cls
+        return cls
+    return register
+
+
+def method_settings(name: str, values: dict):
+    """Method `name`'s settings with `values` changed; OptionError for an unknown method, setting or
+    a value of the wrong type."""
+    if name not in METHODS:
+        raise OptionError(f"unknown method {name!r}; choose from {list(METHODS)}", "method")
+    cls = METHODS[name]
+    if unknown := sorted(set(values) - {f.name for f in fields(cls)}):
+        raise OptionError(f"unknown optimizer setting {', '.join(unknown)} for {name}; its settings: "
+                          f"{', '.join(f.name for f in fields(cls))}", "optimizer")
+    check_types(cls, values)
+    return cls(**values)
+
+
+@method("rs")
+@dataclass(frozen=True)
+class RandomSearchSettings:
+    """Random search (the paper's Alg. 1): i.i.d. N(0, I) tickets, each on every search seed."""
+
+    batch_size: int = option(50, "tickets per ask")
+    num_tickets: int | None = option(None, "tickets in all (default: until the budget is spent)")
+
+
+@method("cem")
+@dataclass(frozen=True)
+class CEMSettings:
+    """The cross-entropy method (Alg. 2) over a diagonal Gaussian: sample `population`, keep the top
+    `elite_frac`, refit with smoothing `alpha`; sigma floored at `sigma_min`, then inflated by
+    `sigma_extra`."""
+
+    population: int = option(50, "tickets per iteration")
+    elite_frac: float = option(0.2, "fraction of the population refit on")
+    alpha: float = option(1.0, "smoothing of the refit (1: the elites' statistics alone)")
+    sigma_init: float = option(1.0, "initial standard deviation")
+    sigma_min: float = option(0.01, "floor of the standard deviation")
+    sigma_extra: float = option(0.0, "noise added to the standard deviation after each refit")
+    iterations: int | None = option(None, "iterations (default: until the budget is spent)")
+
+
+@method("zos")
+@dataclass(frozen=True)
+class ZerothOrderSettings:
+    """Zeroth-order search (Alg. 3): a random walk on a sphere of `radius` around a pivot."""
+
+    candidates: int = option(10, "tickets per iteration")
+    radius: float = option(0.5, "L2 radius of the steps")
+    iterations: int | None = option(None, "iterations after the pivot (default: until the budget)")
+
+
+@method("cem-racing")
+@dataclass(frozen=True)
+class CEMRacingSettings(CEMSettings):
+    """CEM whose population is raced by sequential halving over `tiers` blocks of search seeds."""
+
+    tiers: int = option(5, "blocks of search seeds; the top half survives each")
+
+
+@method("cem-bounds")
+@dataclass(frozen=True)
+class CEMBoundsSettings(CEMSettings):
+    """CEM whose population is raced with Hoeffding confidence bounds, `block` seeds at a time."""
+
+    block: int = option(4, "search seeds per block")
+    delta: float = option(0.1, "level of each confidence bound")
+    value_range: float = option(1.0, "range of an episode's return")
+
+
+@method("cma-es")
+@dataclass(frozen=True)
+class CMAESSettings:
+    """CMA-ES (the `cma` package) over the flattened ticket."""
+
+    population: int = option(20, "tickets per generation")
+    sigma_init: float = option(1.0, "initial step size")
+    mean: tuple[tuple[float, ...], ...] | None = option(None, "start ticket, rows of the searched shape "
+                                                        "(default: w = 0)")
+    iterations: int | None = option(None, "generations (default: until the budget is spent)")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -68,13 +161,14 @@ class SearchConfig(EngineOptions):
     """One search run; the same config and seed always give the same numbers. `task` may be
     several task names (a tuple): one ticket for a multi-task policy, judged per task."""
 
-    policy: str | object = option(help=POLICY_HELP, required=True)  # or a NoisePolicy object
+    policy: str | object = option(help=POLICY_HELP)  # or a NoisePolicy object
     task: str | Callable | tuple[str, ...] = option(
         help=TASK_HELP + "; repeat for one ticket over several tasks of a multi-task policy (task-averaged "
-        "success, judged per task)", action="append", required=True)
+        "success, judged per task) (default in search: the task a bundled single-task policy was trained on)",
+        action="append")
     method: str = option("cma-es", "random search, CEM, zeroth-order search, CEM raced by halving "
                          "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES",
-                         choices=tuple(OPTIMIZERS))
+                         choices=tuple(METHODS))
     budget: int = option(850, "search episodes to spend (per task for transfer); with the default "
                          "validation, 1250 episodes before the verdict")
     seed: int = option(0, "seed of every random draw")
@@ -101,12 +195,17 @@ class SearchConfig(EngineOptions):
                                           "for one task, 0 for several; 0: judge the search's top_k)")
     no_regression: bool = option(False, "several tasks: never pick a ticket significantly worse than the "
                                  "base on a task", action="store_true")
-    tickets: tuple = option((), "a ticket file or bundled ticket id to validate beside the search's best "
-                            "and the zero ticket (e.g. from another task or an earlier run); repeat for "
-                            "several", action="append", flag="--ticket", metavar="TICKET")
-    log: tuple = option((), "also log the search to tensorboard (in --out/tensorboard) or wandb (offline, in "
-                        "--out/wandb); repeat or comma-separate for both. --out/log.csv is always written",
-                        action="append", metavar="SINK")
+    tickets: tuple[str | Path, ...] | str | Path = option(
+        (), "a ticket file or bundled ticket id to validate beside the search's best and the zero ticket "
+        "(e.g. from another task or an earlier run); repeat for several", action="append", flag="--ticket",
+        metavar="TICKET")
+    log: tuple[str, ...] | str = option(
+        (), "also log the search to tensorboard (in --out/tensorboard) or wandb (offline, in --out/wandb); "
+        "repeat or comma-separate for both. --out/log.csv is always written", action="append", metavar="SINK")
+    optimizer: dict | None = option(None, "a setting of the method changed from its default, e.g. "
+                                    "population=40 or sigma_init=0.5 (each method's settings: the "
+                                    "concepts page); repeat for several; in a config file, optimizer = "
+                                    "{population = 40}", key_values=True, metavar="KEY=VALUE")
 
     def __post_init__(self):
         object.__setattr__(self, "tickets", ticket_refs(self.tickets))
@@ -137,8 +236,7 @@ class SearchConfig(EngineOptions):
             if getattr(self, name) not in allowed:
                 raise OptionError(f"unknown {name} {getattr(self, name)!r}; choose from "
                                   f"{list(OBJECTIVES)}", name)
-        if self.method not in OPTIMIZERS:
-            raise OptionError(f"unknown method {self.method!r}; choose from {list(OPTIMIZERS)}", "method")
+        self.settings()
         if self.tickets and not self.validation():
             raise OptionError("tickets: a given ticket runs on the validation seeds beside the search's "
                               "best, so it needs validation_seeds > 0", "tickets", "validation_seeds")
@@ -171,33 +269,22 @@ class SearchConfig(EngineOptions):
             return 0 if len(self.tasks) > 1 else 40
         return self.validation_seeds
 
-    def optimizer(self, noise_shape: tuple[int, int], search_seeds: list[int]):
-        """This run's optimizer over its sub-space, fresh from its seed; OptionError if the budget
-        cannot score even the first ticket it asks for."""
-        from goldenticket.ticket_search import make_optimizer
-        from goldenticket.ticket_search.subspace import Subspace
-
-        searched = Subspace.parse(self.subspace, noise_shape).shape(noise_shape)
-        optimizer = make_optimizer(self.method, searched, search_seeds, np.random.default_rng(self.seed))
-        needed = len(copy.deepcopy(optimizer).ask()[0].seeds)
-        if self.budget < needed:
-            raise OptionError(f"budget {self.budget} is too small: {self.method} needs {needed} "
-                              "episodes to score one ticket", "budget")
-        return optimizer
+    def settings(self):
+        """The method's settings: its registered dataclass with `optimizer` applied."""
+        return method_settings(self.method, self.optimizer or {})
 
 
 @dataclass(frozen=True)
 class EvaluateConfig(EngineOptions):
     """Base, zero ticket and tickets judged on held-out seeds."""
 
-    policy: str | object = option(help=POLICY_HELP, required=True)
+    policy: str | object = option(help=POLICY_HELP)
     task: str | Callable | None = option(None, TASK_HELP + " (default: the task the tickets were found on)")
-    tickets: tuple = option((), "ticket file or bundled ticket id; repeat for several; without it, only the "
-                            "base and the zero ticket run", action="append", flag="--ticket",
-                            metavar="TICKET")
+    tickets: tuple[str | Path, ...] | str | Path = option(
+        (), "ticket file or bundled ticket id; repeat for several; without it, only the base and the zero "
+        "ticket run", action="append", flag="--ticket", metavar="TICKET")
     seeds: Sequence[int] = option(range(1_000_000, 1_000_200), "held-out seed range A:B, A included, B "
-                                  "not (seeds 1000000:2000000 name held-out states)", required=True,
-                                  seed_range=True)
+                                  "not (seeds 1000000:2000000 name held-out states)", seed_range=True)
     seed: int = option(0, "seed of the base policy's Gaussian noise")
     max_steps: int | None = option(None, "episode step limit (default: the tickets' own, else the task's)")
     success: str | Callable | None = option(None, SUCCESS_HELP.replace("(default: ", "(default: the "
@@ -217,6 +304,7 @@ class EvaluateConfig(EngineOptions):
         super().check()
         if self.seed < 0:
             raise OptionError(f"seed must be >= 0, got {self.seed}", "seed")
+        check_seeds(self.seeds)
         if not 0 <= self.epsilon <= 1 or (self.epsilon and not self.mixture):
             raise OptionError(f"epsilon must be in [0, 1] and comes with mixture, got {self.epsilon}",
                               "epsilon", "mixture")
@@ -227,7 +315,7 @@ class TrainConfig:
     """A policy trained on imperfect scripted-expert demonstrations, and its model card."""
 
     task: str = option(help="built-in Meta-World task, e.g. metaworld/reach-v3 (metaworld-pixels/...: a "
-                       "policy that sees camera frames)", required=True)
+                       "policy that sees camera frames)")
     kind: str = option("flow", "flow matching (Euler steps) or DDIM (eta = 0)", choices=("flow", "ddim"))
     demos: int = option(20, "successful demonstrations to train on")
     grasp_offset: float = option(0.0, "each demonstrator aims at the object shifted by U(+-this) m in x "
@@ -256,6 +344,73 @@ class TrainConfig:
                 raise OptionError(f"{name} must be >= 0, got {getattr(self, name)}", name)
         if self.kind not in ("flow", "ddim"):
             raise OptionError(f"unknown kind {self.kind!r}; choose from ['flow', 'ddim']", "kind")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TransferOptions:
+    """`transfer`'s own options, beside a search's: the tickets to judge instead of searching one per
+    task, or each task's search budget (no default: one or the other)."""
+
+    budget: int | None = option(None, "search episodes per task; needed unless --ticket is given")
+    tickets: tuple[str | Path, ...] | str | Path = option((), "take these tickets (files or bundled ids) "
+                                                          "instead of searching one per task",
+                                                          action="append", flag="--ticket", metavar="TICKET")
+
+    def __post_init__(self):
+        object.__setattr__(self, "tickets", ticket_refs(self.tickets))
+
+    def check(self) -> None:
+        if self.budget is None and not self.tickets:
+            raise OptionError("transfer needs budget (search episodes per task) or tickets", "budget",
+                              "tickets")
+
+
+STOPPING_HELP = (
+    "sequential (default): a race runs the tickets in rounds and drops each one that clearly trails the "
+    "leader, until one is left or N x K search episodes are spent; then it and the base run in pairs until "
+    "a sequential test decides (at most --confirm pairs). In simulation, 6 x 25 with one ticket 20 to 40 "
+    "points better than the base: 31-63% fewer operator episodes than fixed, at equal or higher power; false "
+    "golden below --alpha (benchmarks/results/session_sequential.md). fixed: the paper's protocol, N x K "
+    "episodes, then the top 2 and the base on M each")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SessionConfig:
+    """A real-robot session's plan (`session new`): N random tickets raced, or K episodes each, then the
+    finalists and the base; `session.Plan` checks the numbers."""
+
+    policy: str = option(help="the policy the robot runs (name, folder or import string)")
+    tickets: int = option(6, "candidate tickets (N, at least 2)")
+    episodes_per_ticket: int = option(25, "search episodes per ticket (K); sequential: the race spends at "
+                                      "most N x K in all")
+    stopping: str = option("sequential", STOPPING_HELP, choices=tuple(DEFAULT_CONFIRM))
+    alpha: float = option(0.05, "type-I error: the chance of calling a ticket golden when it is no better")
+    confirm: int | None = option(
+        None, f"confirm episodes per arm (M): fixed, each finalist and the base run M (default "
+        f"{DEFAULT_CONFIRM['fixed']}); sequential, at most M pairs of the finalist and the base (default "
+        f"{DEFAULT_CONFIRM['sequential']}, so never more episodes than fixed); N x K + 3 x M (fixed) or "
+        "+ 2 x M is at most 100000")
+    seed: int = option(0, "seed of the tickets, the order and the base noise")
+
+    def check(self) -> None:
+        if self.seed < 0:
+            raise OptionError(f"seed must be >= 0, got {self.seed}", "seed")
+        if self.stopping not in DEFAULT_CONFIRM:
+            raise OptionError(f"stopping must be one of {', '.join(DEFAULT_CONFIRM)}, got {self.stopping!r}",
+                              "stopping")
+
+    def confirm_episodes(self) -> int:
+        """M: as given, else the stopping rule's default."""
+        return DEFAULT_CONFIRM[self.stopping] if self.confirm is None else self.confirm
+
+
+@dataclass(frozen=True, kw_only=True)
+class ServeConfig:
+    """Where `session serve` listens for the operator page and the robot."""
+
+    host: str = option("127.0.0.1", "interface; other than local needs --token")
+    port: int = option(8765, "TCP port of the operator page and the robot's HTTP API")
+    token: str | None = option(None, "required from every client when set")
 
 
 def ticket_refs(tickets) -> tuple[str, ...]:
@@ -289,7 +444,37 @@ def make(cls, values: dict):
     missing = [f.name for f in fields(cls) if f.default is MISSING and f.name not in values]
     if missing:
         raise OptionError(f"{', '.join(missing)} must be given", *missing)
+    check_types(cls, values)
     return cls(**values)
+
+
+@functools.cache
+def field_types(cls) -> dict:
+    """Each field's annotation of `cls`, evaluated (the module postpones them: `f.type` is a string)."""
+    return typing.get_type_hints(cls)
+
+
+def check_types(cls, values: dict) -> None:
+    """OptionError naming the first value that is not of its field's annotated type."""
+    for f in fields(cls):
+        if f.name in values and not conforms(value := values[f.name], field_types(cls)[f.name]):
+            raise OptionError(f"{f.name} must be of type {f.type}, got {value!r} ({type(value).__name__})",
+                              f.name)
+
+
+def conforms(value, hint) -> bool:
+    """Whether `value` is of type `hint`: a bool is no int, an int is a float, a list is a tuple, and a
+    range is a Sequence[int]."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (UnionType, typing.Union):
+        return any(conforms(value, arg) for arg in args)
+    if origin in (tuple, Sequence):
+        if isinstance(value, range):
+            return origin is Sequence and args[0] is int
+        return isinstance(value, tuple | list) and all(conforms(v, args[0]) for v in value)
+    if hint in (int, float):
+        return isinstance(value, int | hint) and not isinstance(value, bool)
+    return isinstance(value, hint)
 
 
 def read_toml(path: Path) -> dict:
@@ -313,7 +498,19 @@ def seed_range(text: str) -> range:
         raise OptionError(f"seeds: expected A:B (integers), got {text!r}", "seeds") from None
     if not 0 <= a < b:
         raise OptionError(f"seed range {text!r} must satisfy 0 <= A < B", "seeds")
+    check_seeds(range(a, b))
     return range(a, b)
+
+
+def check_seeds(seeds: Sequence[int]) -> None:
+    """OptionError unless there are seeds and all lie in the seed sets (a range's ends only: it may be
+    too long to count)."""
+    if not seeds:
+        raise OptionError("seeds: none given", "seeds")
+    ends = (seeds[0], seeds[-1]) if isinstance(seeds, range) else seeds
+    low, high = min(ends), max(ends)
+    if low < 0 or high >= SEEDS_END:
+        raise OptionError(f"seeds {low}:{high + 1} lie beyond the seed sets (0:{SEEDS_END})", "seeds")
 
 
 def to_toml(config) -> str:
@@ -326,13 +523,15 @@ def to_toml(config) -> str:
             continue
         if isinstance(value, range):
             value = f"{value.start}:{value.stop}"
-        elif not isinstance(value, str | int | float | bool | tuple | list):
+        elif not isinstance(value, str | int | float | bool | tuple | list | dict):
             value = named(value)
         lines.append(f"{f.name} = {_toml_value(value)}")
     return "\n".join(lines) + "\n"
 
 
 def _toml_value(value) -> str:
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + "}"
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, tuple | list):
@@ -345,9 +544,9 @@ def named(obj) -> str | None:
     return obj if obj is None or isinstance(obj, str) else import_name(obj)
 
 
-def spelled_flags() -> dict[str, str]:
-    """The fields whose flag is not the generated one (`tickets` -> `--ticket`)."""
-    return {f.name: f.metadata["cli"]["flag"] for cls in (SearchConfig, EvaluateConfig) for f in fields(cls)
+def spelled_flags(*classes) -> dict[str, str]:
+    """The fields of `classes` whose flag is not the generated one (`tickets` -> `--ticket`)."""
+    return {f.name: f.metadata["cli"]["flag"] for cls in classes for f in fields(cls)
             if "flag" in f.metadata["cli"]}
 
 

@@ -13,9 +13,9 @@ from goldenticket.config import MAX_NONFINITE, EngineOptions, check_max_nonfinit
 from goldenticket.errors import OptionError, UserError
 from goldenticket.noise import Constant, Gaussian, NoiseSource
 from goldenticket.rollout import NONFINITE, Engine, Episode, EpisodeResult
+from goldenticket.seeds import SEED_SETS, seed_set_of
 from goldenticket.stats import Rate, holm_adjust, paired_exact_test
 from goldenticket.store import EpisodeRow, RunStore
-from goldenticket.tasks.base import SEED_SETS, seed_set_of
 
 ZERO_MARK = " (w = 0)"  # ends the zero ticket's label in the verdict table when it is judged as a ticket
 

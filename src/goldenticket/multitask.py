@@ -22,8 +22,8 @@ from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
 from goldenticket.policies import find_ticket, load_policy
 from goldenticket.results import Cover, TransferCell, TransferStudy
+from goldenticket.seeds import seeds_in
 from goldenticket.stats import holm_adjust
-from goldenticket.tasks import seeds_in
 from goldenticket.tickets import Ticket, zero_ticket
 
 

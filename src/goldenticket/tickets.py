@@ -19,7 +19,7 @@ from goldenticket.files import write_atomic
 
 _TENSOR = "noise"
 _META_KEY = "goldenticket"
-_MAX_VALUES = 2**24  # far more than any (horizon, action_dim): a header declaring more is not a ticket
+MAX_VALUES = 2**24  # far more than any (horizon, action_dim): a header declaring more is not a ticket
 ZERO_SOURCE = "zero ticket"  # the record's source when it is the zero ticket (w = 0)
 GIVEN = "given: "  # the record's source of a ticket given to the job: "given: <file or id>"
 
@@ -235,8 +235,8 @@ class Ticket:
                 if expected_shape is not None and shape != tuple(expected_shape):
                     raise UserError(f"{path}: noise shape {shape} does not match the policy's "
                                     f"expected shape {tuple(expected_shape)}")
-                if math.prod(shape) > _MAX_VALUES:
-                    raise UserError(f"{path}: noise shape {shape} holds more than the {_MAX_VALUES} values a "
+                if math.prod(shape) > MAX_VALUES:
+                    raise UserError(f"{path}: noise shape {shape} holds more than the {MAX_VALUES} values a "
                                     "ticket may have")
                 noise = f.get_tensor(_TENSOR)
                 header_meta = f.metadata() or {}

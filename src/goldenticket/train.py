@@ -18,8 +18,9 @@ from goldenticket.errors import OptionError, UserError
 from goldenticket.files import new_folder_beside, write_atomic
 from goldenticket.policies import mlp
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
+from goldenticket.seeds import seeds_in
 from goldenticket.stats import Rate
-from goldenticket.tasks import MetaWorldTask, get_task, seeds_in
+from goldenticket.tasks import MetaWorldTask, get_task
 from goldenticket.tasks.base import stack
 from goldenticket.tasks.metaworld import STATE_DIM
 from goldenticket.tasks.pixels import SIZE as PIXELS

@@ -16,7 +16,7 @@ from goldenticket.job.records import other_candidates, searched
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.results import MultitaskSummary, SearchRun, Summary
-from goldenticket.tasks import seeds_in
+from goldenticket.seeds import seeds_in
 from goldenticket.ticket_search.subspace import Subspace
 from goldenticket.tickets import zero_ticket
 from goldenticket.tracking import Tracker
@@ -38,7 +38,7 @@ def find_golden_tickets(cfg: SearchConfig, out: str | Path) -> Summary | Multita
     heldout, search_seeds = seeds_in("heldout", cfg.heldout), seeds_in("search", cfg.search_seeds)
     validation = seeds_in("validation", cfg.validation())
     keys = list(range(len(tasks) * len(search_seeds)))
-    optimizer = cfg.optimizer(policy.noise_shape, keys)
+    optimizer = stages.optimizer(cfg, policy.noise_shape, keys)
     names = Names.of(cfg.policy, policy, " + ".join(task_names), shared(t.max_steps for t in tasks),
                      cfg.success)
     expand = functools.partial(Subspace.parse(cfg.subspace, policy.noise_shape).expand,

@@ -15,10 +15,10 @@ from goldenticket.factories import is_import_string
 from goldenticket.job.names import Names
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.policies import find_ticket, load_policy
+from goldenticket.seeds import require_heldout, require_unseen
 from goldenticket.store import RunStore
 from goldenticket.studies.diversity import action_spread
 from goldenticket.tasks import get_task
-from goldenticket.tasks.base import require_heldout, require_unseen
 from goldenticket.tickets import Ticket, zero_ticket
 
 
@@ -91,8 +91,9 @@ def found_under(tickets: list[Ticket], given: dict, allow_transfer: bool = False
                               "allow_transfer to run it anyway", key, "allow_transfer")
         settings[key] = value if value is not None else next(iter(recorded), None)
         if value is None and isinstance(settings[key], str) and is_import_string(settings[key]):
-            raise OptionError(f"ticket {recorded[settings[key]]} names {settings[key]!r}, code of its own, as "
-                              f"its {key}; a ticket does not run code: give {key} to run it", key)
+            ticket = recorded[settings[key]]
+            raise OptionError(f"ticket {ticket} names {settings[key]!r}, code of its own, as its {key}; a "
+                              f"ticket does not run code: give {key} to run it", key)
     if settings["task"] is None:
         raise OptionError("no task given and no ticket names one; give task", "task")
     return settings

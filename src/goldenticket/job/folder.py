@@ -29,6 +29,8 @@ def open_store(out: str | Path, cfg: SearchConfig, names: Names) -> RunStore:
         "policy": names.policy, "task": names.task, "success": named(cfg.success),
         "policy_fingerprint": names.fingerprint,
         "workers": None, "backend": None, "address": None}  # where episodes run does not change them
+    if cfg.optimizer is None:
+        del config["optimizer"]  # the method's own settings: claimed as before they could change
     if not store.claim_config(config):
         store.close()
         raise UserError(f"{out} holds a different run; choose another output folder or the same options")

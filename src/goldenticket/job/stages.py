@@ -3,6 +3,7 @@ Each takes the open Evaluator and returns typed results; none writes files but t
 
 from __future__ import annotations
 
+import copy
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.config import SearchConfig
+from goldenticket.errors import OptionError
 from goldenticket.evaluation import Evaluator, Judged, judge, judge_size
 from goldenticket.files import write_atomic
 from goldenticket.job.names import Names
@@ -18,7 +20,8 @@ from goldenticket.job.records import searched
 from goldenticket.noise import Constant, NoiseSource
 from goldenticket.results import ParetoFront
 from goldenticket.studies.pareto import pareto_study
-from goldenticket.ticket_search import Optimizer, SearchResult, query_evaluator, run_search
+from goldenticket.ticket_search import OPTIMIZERS, Optimizer, SearchResult, query_evaluator, run_search
+from goldenticket.ticket_search.subspace import Subspace
 from goldenticket.tickets import Ticket, ticket_id
 
 
@@ -34,6 +37,18 @@ def search_evaluate(evaluator: Evaluator, fingerprint: str, expand: Callable = l
                     where: Callable = lambda key: (None, key)) -> Callable:
     """The driver's evaluate() over `evaluator` (`ticket_search.query_evaluator`)."""
     return query_evaluator(run_tickets(evaluator, fingerprint), expand, where)
+
+
+def optimizer(cfg: SearchConfig, noise_shape: tuple[int, int], keys: list[int]) -> Optimizer:
+    """The run's optimizer over its sub-space, fresh from its seed, on the search seed `keys`;
+    OptionError if the budget cannot score even the first ticket it asks for."""
+    searched = Subspace.parse(cfg.subspace, noise_shape).shape(noise_shape)
+    built = OPTIMIZERS[cfg.method](searched, keys, np.random.default_rng(cfg.seed), cfg.settings())
+    needed = len(copy.deepcopy(built).ask()[0].seeds)
+    if cfg.budget < needed:
+        raise OptionError(f"budget {cfg.budget} is too small: {cfg.method} needs {needed} episodes to score "
+                          "one ticket", "budget")
+    return built
 
 
 def baselines(evaluator: Evaluator, tasks: list[str], base: NoiseSource, zero: NoiseSource,

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
+import math
 from pathlib import Path
 
 from goldenticket.errors import UserError
@@ -15,7 +17,7 @@ from goldenticket.factories import build, call_users, import_name, is_import_str
 from goldenticket.policies import lerobot
 from goldenticket.policies.base import NoisePolicy, TicketedPolicy
 from goldenticket.policies.mlp import MLPPolicy
-from goldenticket.tickets import Ticket
+from goldenticket.tickets import MAX_VALUES, Ticket
 
 BUNDLED_DIR = Path(__file__).parent / "bundled"
 
@@ -68,13 +70,32 @@ def load_policy(name: str | NoisePolicy) -> NoisePolicy:
     if lerobot.is_checkpoint(path):
         return lerobot.LeRobotPolicy(path, steps, name)
     if not (path / "config.json").is_file():
-        if base not in policy_names():
-            raise UserError(f"unknown policy {base!r}; run `goldenticket policies` to list them")
-        path = BUNDLED_DIR / base
+        path = _bundled(base)
     policy = MLPPolicy.load(path)
     if steps is None:
         return policy
     return MLPPolicy(dataclasses.replace(policy.cfg, name=name, steps=steps), policy.model)
+
+
+def bundled_task(name: str) -> str | None:
+    """The task a bundled single-task policy was trained on, the folder its name lies in
+    (`metaworld/pick-place-v3/flow@2` -> `metaworld/pick-place-v3`); None for a multi-task one and for
+    any other policy (an import string, a folder, a LeRobot checkpoint); UserError for an unknown name."""
+    if is_import_string(name):
+        return None
+    base, _ = split_steps(name)
+    if lerobot.is_checkpoint(Path(base)) or (Path(base) / "config.json").is_file():
+        return None
+    if json.loads((_bundled(base) / "config.json").read_text()).get("tasks"):
+        return None
+    return base.rpartition("/")[0]
+
+
+def _bundled(base: str) -> Path:
+    """A bundled policy's folder; UserError naming an unknown one."""
+    if base not in policy_names():
+        raise UserError(f"unknown policy {base!r}; run `goldenticket policies` to list them")
+    return BUNDLED_DIR / base
 
 
 def for_task(policy: NoisePolicy, task: str) -> NoisePolicy:
@@ -88,9 +109,12 @@ def for_task(policy: NoisePolicy, task: str) -> NoisePolicy:
 def _checked(policy, name: str) -> NoisePolicy:
     """The object if it looks like a NoisePolicy, else a one-line UserError saying what is off."""
     shape = getattr(policy, "noise_shape", None)
-    if not (isinstance(shape, tuple | list) and len(shape) == 2 and all(isinstance(d, int) and d >= 1
-                                                                       for d in shape)):
+    if not (isinstance(shape, tuple | list) and len(shape) == 2
+            and all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in shape)):
         raise UserError(f"policy {name!r}: noise_shape must be (H, A) with H, A >= 1, got {shape!r}")
+    if math.prod(shape) > MAX_VALUES:
+        raise UserError(f"policy {name!r}: noise_shape {tuple(shape)} holds more than the {MAX_VALUES} "
+                        "values a ticket may have")
     if not (isinstance(getattr(policy, "n_exec", None), int) and policy.n_exec >= 1):
         raise UserError(f"policy {name!r}: n_exec must be an integer >= 1")
     if not callable(getattr(policy, "act", None)):

@@ -26,7 +26,6 @@ BASE = "base"
 MAX_EPISODES = 100_000
 MAX_CAP = 1000  # pairs under sequential stopping: its test is calibrated exactly over the cap
 STOPPING = ("sequential", "fixed")
-DEFAULT_CONFIRM = {"fixed": 50, "sequential": 70}  # sequential: never more episodes than fixed
 FIRST_ROUND, ROUND, DROP_Z = 10, 2, 1.5  # the race (benchmarks/session_sequential.py chose them)
 FUTILITY = (0.7, 0.2)  # (q1, beta) of the confirm test's futility stop (stats.sequential_sign_test)
 

@@ -16,10 +16,10 @@ import numpy as np
 
 from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
 from goldenticket.noise import NoiseSource
+from goldenticket.objectives import OBJECTIVES
 from goldenticket.plots import front_png
 from goldenticket.results import FrontArm, ParetoFront
 from goldenticket.rollout import EpisodeResult
-from goldenticket.tasks import OBJECTIVES
 from goldenticket.ticket_search import Candidate
 
 

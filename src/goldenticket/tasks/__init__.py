@@ -1,6 +1,8 @@
 """Seeded environments: the same integer seed always gives the same initial state."""
 
-from goldenticket.tasks.base import OBJECTIVES, SEED_SETS, Env, Task, seeds_in
+from goldenticket.objectives import OBJECTIVES
+from goldenticket.seeds import SEED_SETS, seeds_in
+from goldenticket.tasks.base import Env, Task
 from goldenticket.tasks.gym import GymTask
 from goldenticket.tasks.metaworld import MetaWorldTask, task_names
 from goldenticket.tasks.registry import get_task

@@ -15,7 +15,8 @@ import numpy as np
 
 from goldenticket.errors import UserError
 from goldenticket.factories import build, call_users, import_name, in_another_process, resolve
-from goldenticket.tasks.base import SEED_SETS, observation_digest, quiet_env_warnings
+from goldenticket.seeds import SEED_SETS
+from goldenticket.tasks.base import observation_digest, quiet_env_warnings
 
 SUCCESS_KEYS = ("success", "is_success")
 CHECK_SEEDS = (SEED_SETS["search"].start, SEED_SETS["heldout"].start)

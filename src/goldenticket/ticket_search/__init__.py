@@ -17,7 +17,6 @@ from goldenticket.ticket_search.optimizers import (
     Query,
     RandomSearch,
     ZerothOrder,
-    hyper_parameters,
     make_optimizer,
 )
 
@@ -33,7 +32,6 @@ __all__ = [
     "RandomSearch",
     "SearchResult",
     "ZerothOrder",
-    "hyper_parameters",
     "make_optimizer",
     "query_evaluator",
     "run_search",

@@ -4,12 +4,12 @@ Every optimizer is pure: it proposes `Query`s and learns from their per-seed ret
 I/O, no environment and no global random state. All randomness and tie-breaking is driven by
 the `rng` it was built with, so the same rng seed and the same returns give the same queries.
 Protocol: call `ask()`, evaluate every query it returned, then `tell()` all of them, in order,
-before asking again.
+before asking again. Each method's settings, with their defaults, are its dataclass in
+`config.METHODS`; an optimizer takes that dataclass, or its fields as keywords.
 """
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -17,6 +17,15 @@ from typing import Protocol
 
 import numpy as np
 
+from goldenticket.config import (
+    CEMBoundsSettings,
+    CEMRacingSettings,
+    CEMSettings,
+    CMAESSettings,
+    RandomSearchSettings,
+    ZerothOrderSettings,
+    method_settings,
+)
 from goldenticket.errors import UserError
 
 
@@ -56,6 +65,16 @@ def _top_indices(scores: np.ndarray, k: int) -> np.ndarray:
     return np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable")[:k]
 
 
+def _settings(cls, settings, params: dict):
+    """`settings`, or `cls(**params)`: an optimizer is given its dataclass or its fields."""
+    if settings is not None:
+        return settings
+    try:
+        return cls(**params)
+    except TypeError as exc:
+        raise UserError(f"{cls.__name__}: {exc}") from None
+
+
 def _check_iterations(iterations: int | None) -> None:
     _require(iterations is None or iterations >= 1, f"iterations must be >= 1, got {iterations}")
 
@@ -83,9 +102,11 @@ class RandomSearch(_Base):
     Runs until `num_tickets` have been asked for (None: until the driver stops it).
     """
 
-    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
-                 rng: np.random.Generator, *, batch_size: int = 50, num_tickets: int | None = None):
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: RandomSearchSettings | None = None, **params):
         super().__init__(noise_shape, seeds, rng)
+        s = _settings(RandomSearchSettings, settings, params)
+        batch_size, num_tickets = s.batch_size, s.num_tickets
         _require(batch_size >= 1, f"batch_size must be >= 1, got {batch_size}")
         _require(num_tickets is None or num_tickets >= 1, f"num_tickets must be >= 1, got {num_tickets}")
         self.batch_size, self.num_tickets, self.asked = batch_size, num_tickets, 0
@@ -109,11 +130,12 @@ class CEM(_Base):
     (None: until the driver stops it).
     """
 
-    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
-                 rng: np.random.Generator, *, population: int = 50, elite_frac: float = 0.2,
-                 alpha: float = 1.0, sigma_init: float = 1.0, sigma_min: float = 0.01,
-                 sigma_extra: float = 0.0, iterations: int | None = None):
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: CEMSettings | None = None, **params):
         super().__init__(noise_shape, seeds, rng)
+        s = _settings(CEMSettings, settings, params)
+        population, elite_frac, alpha, iterations = s.population, s.elite_frac, s.alpha, s.iterations
+        sigma_init, sigma_min, sigma_extra = s.sigma_init, s.sigma_min, s.sigma_extra
         _require(population >= 2, f"population must be >= 2, got {population}")
         _require(0 < elite_frac <= 1, f"elite_frac must be in (0, 1], got {elite_frac}")
         _require(0 < alpha <= 1, f"alpha must be in (0, 1], got {alpha}")
@@ -158,10 +180,11 @@ class ZerothOrder(_Base):
     iterations after the pivot (None: until the driver stops it).
     """
 
-    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
-                 rng: np.random.Generator, *, candidates: int = 10, radius: float = 0.5,
-                 iterations: int | None = None):
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: ZerothOrderSettings | None = None, **params):
         super().__init__(noise_shape, seeds, rng)
+        s = _settings(ZerothOrderSettings, settings, params)
+        candidates, radius, iterations = s.candidates, s.radius, s.iterations
         _require(candidates >= 1, f"candidates must be >= 1, got {candidates}")
         _require(radius > 0, f"radius must be > 0, got {radius}")
         _check_iterations(iterations)
@@ -202,8 +225,8 @@ class _RacedCEM(CEM):
     candidate's mean over the episodes it ran."""
 
     def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
-                 block: int, **cem_params):
-        super().__init__(noise_shape, seeds, rng, **cem_params)
+                 block: int, settings: CEMSettings):
+        super().__init__(noise_shape, seeds, rng, settings)
         self.blocks = [self.seeds[i : i + block] for i in range(0, len(self.seeds), block)]
         self._alive = np.arange(0)  # population indices still racing; empty between iterations
 
@@ -236,17 +259,18 @@ class CEMRacing(_RacedCEM):
     seeds are dropped from `self.seeds`). The first ask of an iteration rolls all P candidates out
     on block 1, each next ask rolls the survivors out on the next block; after each tier the top
     half (at least one) by cumulative mean return survives. After the last tier CEM refits on
-    every candidate's cumulative mean. Other keyword arguments are CEM's hyper-parameters.
+    every candidate's cumulative mean. Its other settings are CEM's.
     """
 
-    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
-                 rng: np.random.Generator, *, tiers: int = 5, **cem_params):
-        seeds = tuple(seeds)
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: CEMRacingSettings | None = None, **params):
+        s = _settings(CEMRacingSettings, settings, params)
+        seeds, tiers = tuple(seeds), s.tiers
         _require(tiers >= 1, f"tiers must be >= 1, got {tiers}")
         _require(len(seeds) >= tiers, f"cem-racing needs at least tiers={tiers} search seeds, "
                                       f"got {len(seeds)}")
         m0 = len(seeds) // tiers
-        super().__init__(noise_shape, seeds[: tiers * m0], rng, m0, **cem_params)
+        super().__init__(noise_shape, seeds[: tiers * m0], rng, m0, s)
 
     def _survivors(self, means: np.ndarray) -> np.ndarray:
         keep = max(1, len(self._alive) // 2)
@@ -263,12 +287,13 @@ class CEMBounds(_RacedCEM):
     seeds run out; CEM refits on every candidate's mean over the episodes it ran.
     """
 
-    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
-                 rng: np.random.Generator, *, block: int = 4, delta: float = 0.1,
-                 value_range: float = 1.0, **cem_params):
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: CEMBoundsSettings | None = None, **params):
+        s = _settings(CEMBoundsSettings, settings, params)
+        block, delta, value_range = s.block, s.delta, s.value_range
         _require(1 <= block <= len(seeds), f"block must be in 1..{len(seeds)} search seeds, got {block}")
         _require(0 < delta < 1 and value_range > 0, "delta must be in (0, 1) and value_range > 0")
-        super().__init__(noise_shape, seeds, rng, block, **cem_params)
+        super().__init__(noise_shape, seeds, rng, block, s)
         self.delta, self.value_range = delta, value_range
 
     def _survivors(self, means: np.ndarray) -> np.ndarray:
@@ -291,12 +316,13 @@ class CMAES(_Base):
     driver stops it).
     """
 
-    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int],
-                 rng: np.random.Generator, *, population: int = 20, sigma_init: float = 1.0,
-                 mean: np.ndarray | None = None, iterations: int | None = None):
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: CMAESSettings | None = None, **params):
         import cma
 
         super().__init__(noise_shape, seeds, rng)
+        s = _settings(CMAESSettings, settings, params)
+        population, sigma_init, mean, iterations = s.population, s.sigma_init, s.mean, s.iterations
         _require(population >= 2, f"population must be >= 2, got {population}")
         _require(sigma_init > 0, f"sigma_init must be > 0, got {sigma_init}")
         start = np.zeros(self.noise_shape) if mean is None else np.asarray(mean, dtype=np.float64)
@@ -344,24 +370,10 @@ OPTIMIZERS: dict[str, type] = {
 }
 
 
-def hyper_parameters(method: str) -> list[str]:
-    """Names of the keyword hyper-parameters `make_optimizer` accepts for `method`."""
-    names = set()
-    for klass in OPTIMIZERS[method].__mro__:
-        if "__init__" in vars(klass) and klass is not object:
-            params = inspect.signature(klass.__init__).parameters.values()
-            names |= {p.name for p in params if p.kind is p.KEYWORD_ONLY}
-    return sorted(names)
-
-
 def make_optimizer(method: str, noise_shape: tuple[int, int], seeds: Sequence[int],
-                   rng: np.random.Generator, **overrides) -> Optimizer:
-    """Build the optimizer named `method` with the paper's defaults, changed by `overrides`."""
-    if method not in OPTIMIZERS:
-        raise UserError(f"unknown search method {method!r}; choose one of: {', '.join(OPTIMIZERS)}")
-    valid = hyper_parameters(method)
-    unknown = sorted(set(overrides) - set(valid))
-    if unknown:
-        raise UserError(f"unknown hyper-parameter {', '.join(unknown)} for {method}; "
-                        f"valid: {', '.join(valid)}")
-    return OPTIMIZERS[method](noise_shape, seeds, rng, **overrides)
+                   rng: np.random.Generator, **changed) -> Optimizer:
+    """The optimizer named `method` with its settings' defaults (`config.METHODS`) but the `changed`
+    ones (an array, such as a start ticket, as nested lists)."""
+    changed = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in changed.items()}
+    settings = method_settings(method, changed)
+    return OPTIMIZERS[method](noise_shape, seeds, rng, settings)

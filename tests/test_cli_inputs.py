@@ -1,0 +1,134 @@
+"""Command-line input at its edges: seed ranges, policies' noise shapes, help, the task a bundled
+policy implies, and the session and transfer flags made from their config fields."""
+
+import argparse
+from dataclasses import MISSING, fields
+
+import pytest
+
+import goldenticket
+from goldenticket import cli, config
+from goldenticket.cli import _parser, main
+from goldenticket.config import SearchConfig, cli_fields
+from goldenticket.errors import OptionError, UserError, flag
+from goldenticket.policies import load_policy
+
+POLICY = "metaworld/pick-place-v3/flow"
+
+
+def _sub(*words: str) -> argparse.ArgumentParser:
+    parser = _parser()
+    for word in words:
+        parser = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[word]
+    return parser
+
+
+def _helps(*words: str) -> dict[str, str]:
+    """Each option's help as --help prints it."""
+    parser = _sub(*words)
+    formatter = parser._get_formatter()
+    return {a.option_strings[0]: formatter._expand_help(a) for a in parser._actions
+            if a.option_strings and a.help}
+
+
+def test_a_seed_range_beyond_the_seed_sets_is_one_line(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["evaluate", "--policy", "p", "--task", "t", "--seeds", "1000000:99999999999999999999"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and "beyond the seed sets (0:4000000)" in err
+    beyond = rf"^seeds 1000000:{10**20} lie beyond the seed sets \(0:4000000\)$"
+    with pytest.raises(OptionError, match=beyond):
+        goldenticket.evaluate("p", "t", seeds=range(1_000_000, 10**20))
+    with pytest.raises(OptionError, match="^seeds: none given$"):
+        goldenticket.evaluate("p", "t", seeds=[])
+
+
+class _Huge:
+    noise_shape, n_exec, name = (10**6, 10**6), 1, "huge"
+
+    def act(self, obs, noise):
+        raise AssertionError("never called")
+
+
+def test_a_policy_whose_noise_shape_cannot_be_held_is_one_line():
+    with pytest.raises(UserError, match=r"^policy 'huge': noise_shape \(1000000, 1000000\) holds more than "
+                                        r"the 16777216 values a ticket may have$"):
+        load_policy(_Huge())
+    boolean = _Huge()
+    boolean.noise_shape = (True, 4)
+    with pytest.raises(UserError, match=r"^policy 'huge': noise_shape must be \(H, A\) with H, A >= 1"):
+        load_policy(boolean)
+
+
+def test_help_says_which_options_are_required_and_every_default():
+    search = _helps("search")
+    assert search["--policy"].endswith("(required)") and _helps("train")["--task"].endswith("(required)")
+    assert search["--task"].endswith("(default in search: the task a bundled single-task policy was trained "
+                                     "on)")
+    assert search["--budget"].endswith("(default: 850)") and search["--out"].endswith("(required)")
+    assert _helps("evaluate")["--seeds"].endswith("(default: 1000000:1000200)")
+    assert _helps("demo")["--seed"].endswith("(default: 0)")
+    for cls, words in ((SearchConfig, ("search",)), (config.SessionConfig, ("session", "new")),
+                       (config.ServeConfig, ("session", "serve"))):
+        helps = _helps(*words)
+        for f in fields(cls):
+            said = any(f.default is v for v in (MISSING, None, False)) or f.default == () \
+                or "(default" in f.metadata["help"]
+            assert said or f"(default: {f.default})" in helps[f.metadata["cli"].get("flag", flag(f.name))]
+
+
+def test_search_takes_the_task_a_bundled_policy_was_trained_on(monkeypatch, tmp_path, capsys):
+    ran = []
+    monkeypatch.setattr(cli, "_run_search", lambda cfg, out: ran.append(cfg) or 0)
+    for policy in (POLICY, "metaworld/pick-place-v3/ddim@2", "metaworld-pixels/drawer-open-v3/flow"):
+        assert main(["search", "--policy", policy, "--out", str(tmp_path)]) == 0
+    assert [cfg.task for cfg in ran] == ["metaworld/pick-place-v3"] * 2 + ["metaworld-pixels/drawer-open-v3"]
+    assert main(["search", "--policy", POLICY, "--task", "metaworld/reach-v3", "--out", str(tmp_path)]) == 0
+    assert ran[-1].task == "metaworld/reach-v3"
+    for policy, said in (("metaworld/nope/flow", "unknown policy 'metaworld/nope/flow'"),
+                         ("metaworld/mt10/flow", "--task must be given"),
+                         ("byo_example:make_policy", "--task must be given")):
+        assert main(["search", "--policy", policy, "--out", str(tmp_path)]) == 2
+        assert said in capsys.readouterr().err
+    assert len(ran) == 4
+
+
+def test_session_new_names_its_own_flags_in_errors(tmp_path, capsys):
+    assert main(["session", "new", "--policy", POLICY, "--out", str(tmp_path / "s"), "--tickets", "1"]) == 2
+    assert capsys.readouterr().err == ("goldenticket: error: --tickets must be at least 2 (the confirm phase "
+                                       "takes the top 2), got 1\n")
+    assert main(["session", "new", "--policy", POLICY, "--out", str(tmp_path / "s"), "--seed", "-1"]) == 2
+    assert capsys.readouterr().err == "goldenticket: error: --seed must be >= 0, got -1\n"
+
+
+@pytest.mark.parametrize("words, classes", [(("session", "new"), ("SessionConfig",)),
+                                            (("session", "serve"), ("ServeConfig",)),
+                                            (("transfer",), ("TransferOptions", "SearchConfig"))])
+def test_session_and_transfer_flags_are_their_config_fields(words, classes):
+    own = {"-h", "--help", "--config", "--out"}
+    flags = {s for a in _sub(*words)._actions for s in a.option_strings} - own
+    skips = {"SearchConfig": cli.TRANSFER_SKIPS}
+    assert flags == {f.metadata["cli"].get("flag", flag(f.name)) for name in classes
+                     for f in cli_fields(getattr(config, name), skips.get(name, ()))}
+
+
+def test_session_new_plans_with_the_config_defaults(tmp_path, capsys):
+    from goldenticket.session import Session
+
+    assert main(["session", "new", "--policy", POLICY, "--out", str(tmp_path / "s")]) == 0
+    plan, cfg = Session(tmp_path / "s").plan, config.SessionConfig(policy=POLICY)
+    assert (plan.tickets, plan.episodes_per_ticket, plan.stopping, plan.alpha, plan.seed, plan.confirm) == (
+        cfg.tickets, cfg.episodes_per_ticket, cfg.stopping, cfg.alpha, cfg.seed, cfg.confirm_episodes())
+
+
+@pytest.mark.parametrize("command", [["search", "--policy", "metaworld/pick-place-v3/flow"],
+                                     ["transfer", "--policy", "metaworld/mt10/flow"],
+                                     ["train", "--task", "metaworld/reach-v3"],
+                                     ["session", "new", "--policy", "metaworld/reach-v3/flow"]])
+def test_an_empty_out_is_refused_not_the_current_folder(command, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main([*command, "--out", ""])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "argument --out: empty; name a folder" in err
+    assert len(err.strip().splitlines()) == 1 and not any(tmp_path.iterdir())
