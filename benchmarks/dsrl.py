@@ -53,14 +53,13 @@ from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator
 from goldenticket.files import write_atomic
-from goldenticket.job.stages import search_evaluate
+from goldenticket.job import search_only
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
 from goldenticket.rollout import Episode, rollout
 from goldenticket.stats import wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
-from goldenticket.ticket_search import make_optimizer, run_search
 
 PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies with the lowest base
 VARIANTS = {"dsrl_sac": "DSRL-SAC", "dsrl_na": "DSRL-NA"}
@@ -225,9 +224,9 @@ def search_point(task_name: str, method: str, budget: int, workers: int) -> dict
             Evaluator.open(policy_name, task, EngineOptions(workers=workers), store,
                            loaded=policy) as evaluator:
         start = time.perf_counter()
-        optimizer = make_optimizer(method, policy.noise_shape, seeds_in("search", SEARCH_SEEDS),
-                                   np.random.default_rng(0))
-        result = run_search(optimizer, search_evaluate(evaluator, policy.fingerprint()), budget=budget)
+        cfg = SearchConfig(policy_name, task.name, method, budget, seed=0, search_seeds=SEARCH_SEEDS,
+                           subspace="full", stop_after_perfect=None)
+        result = search_only(cfg, evaluator, policy)
         seconds = time.perf_counter() - start
         env_steps = sum(row.length for row in store.episodes())
         top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]

@@ -22,14 +22,13 @@ from pathlib import Path
 import numpy as np
 from results_files import write_results
 
-from goldenticket.config import EngineOptions
+from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.evaluation import Evaluator
-from goldenticket.job.stages import search_evaluate
+from goldenticket.job import search_only
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.policies import load_policy
+from goldenticket.policies import identity, load_policy
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
-from goldenticket.ticket_search import make_optimizer, run_search
 from goldenticket.tickets import Ticket, TicketRecord
 
 HERE = Path(__file__).parent
@@ -46,16 +45,17 @@ CHECKPOINTS = (100, 200, 500, 1000, 2000, 5000)  # search episodes
 SEARCH_SEEDS, HELDOUT = 20, 100
 
 
-def best_at(evaluator: Evaluator, fingerprint: str, noise_shape, label: str,
-            budget: int) -> tuple[Ticket, float]:
+def best_at(evaluator: Evaluator, policy_name: str, policy, label: str, budget: int) -> tuple[Ticket, float]:
     """The best ticket (and its search success) a search with this budget ends with, replayed
-    from seed 0."""
-    method, params, _ = METHODS[label]
-    optimizer = make_optimizer(method, noise_shape, seeds_in("search", SEARCH_SEEDS),
-                               np.random.default_rng(0), **params)
-    result = run_search(optimizer, search_evaluate(evaluator, fingerprint), budget=budget)
+    from seed 0 (the job's search over every entry of the ticket, no early stop)."""
+    method, params, objective = METHODS[label]
+    cfg = SearchConfig(policy_name, evaluator.engine.task.name, method, budget, seed=0, optimizer=params,
+                       search_seeds=SEARCH_SEEDS, subspace="full", objective=objective,
+                       stop_after_perfect=None)
+    result = search_only(cfg, evaluator, policy)
     top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]
-    return Ticket(top.ticket, TicketRecord(policy_fingerprint=fingerprint)), float(np.mean(top.successes))
+    ticket = Ticket(top.ticket, TicketRecord(policy_fingerprint=identity(policy)))
+    return ticket, float(np.mean(top.successes))
 
 
 def held_out(evaluator: Evaluator, ticket: Ticket | None) -> float:
@@ -76,8 +76,7 @@ def compare(policy_name: str, runs: Path, workers: int) -> dict:
             for label in [k for k, (_, _, o) in METHODS.items() if o == objective]:
                 out[label] = []
                 for budget in CHECKPOINTS:
-                    ticket, search = best_at(evaluator, policy.fingerprint(), policy.noise_shape, label,
-                                             budget)
+                    ticket, search = best_at(evaluator, policy_name, policy, label, budget)
                     out[label].append({"budget": budget, "search": search,
                                        "heldout": held_out(evaluator, ticket)})
                 print(f"{policy_name} {label}: held-out {[p['heldout'] for p in out[label]]}", flush=True)

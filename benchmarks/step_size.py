@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,9 +26,10 @@ from results_files import RESULTS, write_results
 
 from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.evaluation import Evaluator, judge
+from goldenticket.job import search_only, stages
 from goldenticket.job.stages import search_evaluate
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.policies import load_policy
+from goldenticket.policies import identity, load_policy
 from goldenticket.report import rate_text
 from goldenticket.stats import paired_exact_test
 from goldenticket.store import RunStore
@@ -48,18 +50,19 @@ def label(start: str) -> str:
     return f"RS, then step {start[3:]}" if start.startswith("rs+") else f"step {start}"
 
 
-def search(evaluator: Evaluator, policy, start: str) -> SearchResult:
-    """A `BUDGET`-episode search from `start`: CMA-ES from w = 0 with that step size, or "rs+S":
-    RS_STAGE random tickets, then CMA-ES from the best of them with step size S."""
+def search(evaluator: Evaluator, name: str, policy, start: str) -> SearchResult:
+    """A `BUDGET`-episode search from `start`: the job's CMA-ES from w = 0 with that step size, or
+    "rs+S": RS_STAGE random tickets, then CMA-ES from the best of them with step size S, both
+    drawing from one generator (a procedure the job does not offer)."""
+    if not start.startswith("rs+"):
+        return search_only(searching(name, sigma_init=float(start)), evaluator, policy)
     seeds, rng = seeds_in("search", DEFAULTS.search_seeds), np.random.default_rng(DEFAULTS.seed)
-    evaluate, shape = search_evaluate(evaluator, policy.fingerprint()), policy.noise_shape
+    evaluate, shape = search_evaluate(evaluator, identity(policy)), policy.noise_shape
 
     def run(method: str, budget: int, **params) -> SearchResult:
         return run_search(make_optimizer(method, shape, seeds, rng, **params), evaluate, budget=budget,
                           stop_after_perfect=DEFAULTS.stop_after_perfect)
 
-    if not start.startswith("rs+"):
-        return run("cma-es", BUDGET, sigma_init=float(start))
     stage = run("rs", BUDGET, batch_size=RS_STAGE, num_tickets=RS_STAGE)
     if stage.stopped_because == "k perfect tickets":
         return stage
@@ -69,17 +72,24 @@ def search(evaluator: Evaluator, policy, start: str) -> SearchResult:
                         rest.stopped_because)
 
 
-def delivered(evaluator: Evaluator, policy, start: str) -> tuple[Ticket, bool]:
-    """The ticket a search from `start` delivers after validation, and whether it is the zero ticket."""
-    fingerprint, shape = policy.fingerprint(), policy.noise_shape
-    result = search(evaluator, policy, start)
-    n = DEFAULTS.search_seeds
-    top = result.top(3 * DEFAULTS.top_k, min_episodes=n) or result.top(3 * DEFAULTS.top_k)
-    zero = Ticket(zero_ticket(shape).noise, TicketRecord(policy_fingerprint=fingerprint))
-    tickets = [Ticket(c.ticket, TicketRecord(policy_fingerprint=fingerprint)) for c in top] + [zero]
-    runs = evaluator.run([(t.id, Constant(t.noise), seeds_in("validation", VALIDATION)) for t in tickets])
-    best = int(np.argmax([np.mean([r.ret for r in results]) for results in runs]))  # ties: search rank
-    return tickets[best], tickets[best].id == zero.id
+def searching(name: str, **settings) -> SearchConfig:
+    """The default search over the full ticket, CMA-ES with `settings`."""
+    return replace(DEFAULTS, policy=name, task=name.rsplit("/", 1)[0], budget=BUDGET, subspace="full",
+                   optimizer=settings, validation_seeds=VALIDATION)
+
+
+def delivered(evaluator: Evaluator, name: str, policy, start: str) -> tuple[Ticket, bool]:
+    """The ticket a search from `start` delivers after validation (the job's: the best of its top
+    3 x top_k and the zero ticket on the validation seeds), and whether it is the zero ticket."""
+    cfg, fingerprint = searching(name), identity(policy)
+    result = search(evaluator, name, policy, start)
+    found_for = TicketRecord(policy_fingerprint=fingerprint)
+    top = [Ticket(c.ticket, found_for) for c in stages.top_candidates(result, cfg, cfg.search_seeds)]
+    zero = Ticket(zero_ticket(policy.noise_shape).noise, found_for)
+    validated = stages.validate(replace(cfg, top_k=1), evaluator, [*top, zero],
+                                seeds_in("validation", VALIDATION), [evaluator.engine.task.name])
+    best = validated.chosen[0]
+    return best, best.id == zero.id
 
 
 def study(pair: str, runs: Path, workers: int) -> dict:
@@ -89,7 +99,7 @@ def study(pair: str, runs: Path, workers: int) -> dict:
     out = {"helps": pair in NOISE_HELPS}
     with RunStore(runs / f"{pair.replace('/', '_')}.sqlite") as store, \
             Evaluator.open(name, task, EngineOptions(workers=workers), store, loaded=policy) as evaluator:
-        picks = {start: delivered(evaluator, policy, start) for start in STARTS}
+        picks = {start: delivered(evaluator, name, policy, start) for start in STARTS}
         sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
         sources |= {t.id: Constant(t.noise) for t, _ in picks.values()}
         judged = judge(evaluator, sources, heldout, Gaussian(DEFAULTS.seed))

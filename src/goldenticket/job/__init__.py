@@ -3,7 +3,6 @@ folder (`stages`, `folder`); and the `evaluate` command (`evaluate`)."""
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 
 import numpy as np
@@ -14,14 +13,14 @@ from goldenticket.job import folder, stages
 from goldenticket.job.names import Names, checked_tasks, search_title, shared
 from goldenticket.job.records import other_candidates, searched
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.policies import load_policy
+from goldenticket.policies import NoisePolicy, identity, load_policy
 from goldenticket.results import MultitaskSummary, SearchRun, Summary
 from goldenticket.seeds import seeds_in
-from goldenticket.ticket_search.subspace import Subspace
+from goldenticket.ticket_search import SearchResult
 from goldenticket.tickets import zero_ticket
 from goldenticket.tracking import Tracker
 
-__all__ = ["Names", "checked_tasks", "find_golden_tickets", "shared"]
+__all__ = ["Names", "checked_tasks", "find_golden_tickets", "search_only", "shared"]
 
 
 def find_golden_tickets(cfg: SearchConfig, out: str | Path) -> Summary | MultitaskSummary:
@@ -41,8 +40,7 @@ def find_golden_tickets(cfg: SearchConfig, out: str | Path) -> Summary | Multita
     optimizer = stages.optimizer(cfg, policy.noise_shape, keys)
     names = Names.of(cfg.policy, policy, " + ".join(task_names), shared(t.max_steps for t in tasks),
                      cfg.success)
-    expand = functools.partial(Subspace.parse(cfg.subspace, policy.noise_shape).expand,
-                               noise_shape=policy.noise_shape)
+    expand = stages.expander(cfg.subspace, policy.noise_shape)
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     others = other_candidates(cfg, names, policy.noise_shape, task_names)
 
@@ -81,3 +79,14 @@ def find_golden_tickets(cfg: SearchConfig, out: str | Path) -> Summary | Multita
     base_return = float(np.mean([r.ret for judged in per_task.values() for r in judged["base"].results]))
     folder.pictures(cfg, names, summary, result, place, bool(validation), base_return, out)
     return summary
+
+
+def search_only(cfg: SearchConfig, evaluator: Evaluator, policy: NoisePolicy) -> SearchResult:
+    """The job's search stage alone, on the evaluator's task: `cfg`'s method and settings over its
+    sub-space, its search seeds and budget; for studies that judge the tickets in their own way."""
+    cfg.check()
+    search_seeds = seeds_in("search", cfg.search_seeds)
+    optimizer = stages.optimizer(cfg, policy.noise_shape, search_seeds)
+    expand = stages.expander(cfg.subspace, policy.noise_shape)
+    evaluate = stages.search_evaluate(evaluator, identity(policy), expand)
+    return stages.search(cfg, evaluator, optimizer, evaluate, 1)

@@ -4,6 +4,7 @@ Each takes the open Evaluator and returns typed results; none writes files but t
 from __future__ import annotations
 
 import copy
+import functools
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -37,6 +38,11 @@ def search_evaluate(evaluator: Evaluator, fingerprint: str, expand: Callable = l
                     where: Callable = lambda key: (None, key)) -> Callable:
     """The driver's evaluate() over `evaluator` (`ticket_search.query_evaluator`)."""
     return query_evaluator(run_tickets(evaluator, fingerprint), expand, where)
+
+
+def expander(subspace: str, noise_shape: tuple[int, int]) -> Callable[[np.ndarray], np.ndarray]:
+    """The full (H, A) ticket of an array searched in `subspace`."""
+    return functools.partial(Subspace.parse(subspace, noise_shape).expand, noise_shape=noise_shape)
 
 
 def optimizer(cfg: SearchConfig, noise_shape: tuple[int, int], keys: list[int]) -> Optimizer:
