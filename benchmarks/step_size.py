@@ -26,7 +26,7 @@ from results_files import RESULTS, write_results
 
 from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.evaluation import Evaluator, judge
-from goldenticket.job import search_only, stages
+from goldenticket.job import Plan, search_only, stages
 from goldenticket.job.stages import search_evaluate
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import identity, load_policy
@@ -81,14 +81,12 @@ def searching(name: str, **settings) -> SearchConfig:
 def delivered(evaluator: Evaluator, name: str, policy, start: str) -> tuple[Ticket, bool]:
     """The ticket a search from `start` delivers after validation (the job's: the best of its top
     3 x top_k and the zero ticket on the validation seeds), and whether it is the zero ticket."""
-    cfg, fingerprint = searching(name), identity(policy)
+    plan = Plan.of(searching(name), policy, [evaluator.engine.task])
     result = search(evaluator, name, policy, start)
-    found_for = TicketRecord(policy_fingerprint=fingerprint)
-    top = [Ticket(c.ticket, found_for) for c in stages.top_candidates(result, cfg, cfg.search_seeds)]
+    found_for = TicketRecord(policy_fingerprint=identity(policy))
+    top = [Ticket(c.ticket, found_for) for c in stages.top_candidates(plan, result)]
     zero = Ticket(zero_ticket(policy.noise_shape).noise, found_for)
-    validated = stages.validate(replace(cfg, top_k=1), evaluator, [*top, zero],
-                                seeds_in("validation", VALIDATION), [evaluator.engine.task.name])
-    best = validated.chosen[0]
+    best = stages.validate(plan, evaluator, [*top, zero], top_k=1).chosen[0]
     return best, best.id == zero.id
 
 

@@ -22,7 +22,8 @@ SMALL = ["--policy", "byo_example:make_policy", "--task", "byo_example:make_env"
 def test_every_method_has_its_settings_and_no_optimizer_repeats_a_default():
     assert set(METHODS) == set(OPTIMIZERS)
     for method, klass in OPTIMIZERS.items():
-        keywords = [p for p in inspect.signature(klass.__init__).parameters.values() if p.default is not p.empty]
+        parameters = inspect.signature(klass.__init__).parameters.values()
+        keywords = [p for p in parameters if p.default is not p.empty]
         assert [p.name for p in keywords] == ["settings"], method  # defaults live in config.METHODS only
         assert make_optimizer(method, (4, 2), range(10), np.random.default_rng(0)).ask()
 
@@ -55,7 +56,8 @@ def test_flags_set_the_methods_settings_for_the_search(tmp_path, monkeypatch):
     assert main(["search", *SMALL, "--budget", "16", "--optimizer", "population=4",
                  "--optimizer", "sigma_init=0.5", "--out", str(out)]) == 0
     with sqlite3.connect(out / "run.sqlite") as db:
-        tickets = db.execute("SELECT COUNT(DISTINCT ticket_id) FROM episodes WHERE seed_set = 'search'").fetchone()
+        tickets = db.execute("SELECT COUNT(DISTINCT ticket_id) FROM episodes WHERE seed_set = 'search'"
+                             ).fetchone()
     assert tickets == (8,)  # two generations of 4 on 2 seeds: 16 episodes
     assert "optimizer = {population = 4, sigma_init = 0.5}" in (out / "config.toml").read_text()
     assert main(["search", *SMALL, "--budget", "16", "--out", str(out)]) == 2  # other settings: another run

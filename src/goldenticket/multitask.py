@@ -16,7 +16,7 @@ from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.evaluation import ALPHA, Evaluator, Judged, VerdictRow, judge, judge_size
 from goldenticket.files import write_atomic
-from goldenticket.job import Names, checked_tasks, find_golden_tickets, shared
+from goldenticket.job import Plan, checked_tasks, find_golden_tickets
 from goldenticket.job.folder import open_store
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.plots import transfer_png
@@ -36,8 +36,8 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     policy = load_policy(cfg.policy)
     tasks = checked_tasks(policy, cfg)
     heldout = seeds_in("heldout", cfg.heldout)
-    names = Names.of(cfg.policy, policy, " + ".join(t.name for t in tasks),
-                     shared(t.max_steps for t in tasks))
+    plan = Plan.of(cfg, policy, tasks)
+    names = plan.names
     if ticket_refs:
         tickets = [Ticket.load(find_ticket(ref), expected_shape=policy.noise_shape) for ref in ticket_refs]
         for ref, ticket in zip(ticket_refs, tickets, strict=True):
@@ -53,7 +53,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
     sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
     with Evaluator.open(cfg.policy, tasks, cfg, loaded=policy) as evaluator, \
-            open_store(out, cfg, names) as store, \
+            open_store(out, plan) as store, \
             evaluator.progress(judge_size(sources, cfg.heldout) * len(tasks), "transfer matrix"):
         evaluator.store = store  # the engine starts first: options it refuses leave no run folder
         per_task = {t.name: judge(evaluator, sources, heldout, base, t.name) for t in tasks}

@@ -12,7 +12,7 @@ from goldenticket.config import EvaluateConfig, named
 from goldenticket.errors import OptionError
 from goldenticket.evaluation import Evaluator, VerdictRow, adjust_for_multiplicity, judge
 from goldenticket.factories import is_import_string
-from goldenticket.job.names import Names
+from goldenticket.job.plan import Names
 from goldenticket.noise import Constant, Gaussian, TopK
 from goldenticket.policies import find_ticket, load_policy
 from goldenticket.seeds import require_heldout, require_unseen

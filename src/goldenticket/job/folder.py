@@ -11,19 +11,19 @@ from goldenticket.config import SearchConfig, named, to_toml
 from goldenticket.errors import UserError
 from goldenticket.evaluation import Judged, adjust_for_multiplicity, multitask_verdict, to_dicts
 from goldenticket.files import open_folder, write_atomic
-from goldenticket.job.names import Names, search_title
+from goldenticket.job.plan import Names, Plan
 from goldenticket.plots import arms_png, search_png, tasks_png
-from goldenticket.results import FoundTicket, MultitaskSummary, SearchRun, Summary
+from goldenticket.results import FoundTicket, MultitaskSummary, ParetoFront, SearchRun, Summary
 from goldenticket.store import RunStore
 from goldenticket.ticket_search import SearchResult
 from goldenticket.tickets import ZERO_SOURCE, Ticket
 
 
-def open_store(out: str | Path, cfg: SearchConfig, names: Names) -> RunStore:
-    """The run store in `out`, holding this config (the policy's fingerprint included: a policy
-    retrained in place is another run)."""
+def open_store(out: str | Path, plan: Plan) -> RunStore:
+    """The run store in `out` (its name as given: Path("") would be the current folder), holding
+    this config (the policy's fingerprint included: a policy retrained in place is another run)."""
     open_folder(out)
-    out = Path(out)
+    out, cfg, names = Path(out), plan.cfg, plan.names
     store = RunStore(out / "run.sqlite")
     config = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in ("max_nonfinite", "log")} | {
         "policy": names.policy, "task": names.task, "success": named(cfg.success),
@@ -60,8 +60,20 @@ def save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, spa
     return tuple(found)
 
 
+def write(plan: Plan, per_task: dict[str, dict[str, Judged]], tickets: list[Ticket], run: SearchRun,
+          out: Path, fronts: dict[str, dict], front: ParetoFront | None) -> Summary | MultitaskSummary:
+    """The verdict as the run's result: each ticket saved with its held-out result, and
+    summary.json."""
+    if len(plan.tasks) > 1:
+        result = multitask_summary(plan.cfg, per_task, tickets, run, out)
+    else:
+        result = summary(plan.names, per_task[plan.task_names[0]], tickets, run, out, fronts, front)
+    write_atomic(out / "summary.json", json.dumps(result.to_dict(), indent=2) + "\n")
+    return result
+
+
 def summary(names: Names, judged: dict[str, Judged], tickets: list[Ticket], run: SearchRun, out: Path,
-            fronts: dict[str, dict], front=None) -> Summary:
+            fronts: dict[str, dict], front: ParetoFront | None) -> Summary:
     """One task's verdict: p-values Holm-adjusted over the tickets, each ticket saved with its
     held-out result, the best first."""
     adjust_for_multiplicity(judged, [t.id for t in tickets])
@@ -82,14 +94,11 @@ def multitask_summary(cfg: SearchConfig, per_task: dict[str, dict[str, Judged]],
     return MultitaskSummary(verdict, run, validation)
 
 
-def write_summary(result: Summary | MultitaskSummary, out: Path) -> None:
-    write_atomic(out / "summary.json", json.dumps(result.to_dict(), indent=2) + "\n")
-
-
-def pictures(cfg: SearchConfig, names: Names, result: Summary | MultitaskSummary, search: SearchResult,
-             place: dict[str, int], validated: bool, base_return: float, out: Path) -> None:
+def pictures(plan: Plan, result: Summary | MultitaskSummary, search: SearchResult, place: dict[str, int],
+             base_return: float, out: Path) -> None:
     """verdict.png (per arm, or per task and on average) and search.png, with the tickets the
     job validated and judged marked (`place`: ticket id -> its place in the search)."""
+    names = plan.names
     title = f"{names.policy} on {names.task}"
     if isinstance(result, MultitaskSummary):
         tasks_png(result.verdict, out / "verdict.png",
@@ -100,7 +109,7 @@ def pictures(cfg: SearchConfig, names: Names, result: Summary | MultitaskSummary
         judged, best = [t.id for t in result.tickets], result.best.id
     span = result.run.heldout_seeds
     search_png([c.mean_return for c in search.candidates], [c.n for c in search.candidates],
-               out / "search.png", search_title(cfg, names),
-               validated=list(place.values()) if validated else [],
+               out / "search.png", plan.title,
+               validated=list(place.values()) if plan.seeds.validation else [],
                judged=[place[t] for t in judged if t in place], chosen=place.get(best),
                base=(base_return, f"held-out seeds {span[0]}:{span[1] + 1}"))
