@@ -13,6 +13,7 @@ import sysconfig
 import traceback
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import spawn
 from pathlib import Path
 
 from goldenticket.errors import UserError
@@ -32,12 +33,17 @@ def resolve(name: str, what: str):
     """The callable `factory` of `package.module` (the current folder is on the path, as for
     `python -m`); every failure is a one-line UserError naming `what`."""
     module_name, _, attr = name.partition(":")
+    if module_name.startswith("."):  # importlib needs a package to resolve it against
+        raise UserError(f"{what} {name!r}: import string {name} is relative; name the module by its full "
+                        "path, package.module:factory")
     if os.getcwd() not in sys.path:
         sys.path.insert(0, os.getcwd())
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise UserError(f"{what} {name!r}: cannot import {module_name} ({exc})") from None
+        module = call_users(importlib.import_module, f"{what} {name!r}: importing {module_name}", module_name)
+    except UserError as exc:
+        if isinstance(exc.__cause__, ImportError):
+            raise UserError(f"{what} {name!r}: cannot import {module_name} ({exc.__cause__})") from None
+        raise
     try:
         factory = functools.reduce(getattr, attr.split("."), module)
     except AttributeError:
@@ -98,9 +104,20 @@ def picklable(obj, what: str) -> None:
                         "define it at module level, or name it by an import string") from None
 
 
+def spawnable(what: str) -> None:
+    """UserError if a spawned process cannot start here: it re-runs the main script, which must be a file
+    (not one read from standard input, `python - < script.py`)."""
+    main = spawn.get_preparation_data(what).get("init_main_from_path")
+    if main is not None and not os.path.isfile(main):
+        raise UserError(f"{what} cannot start: a spawned process re-runs the main script, {main}, which is "
+                        "not a file (a script read from standard input?); save the script to a file and run "
+                        "that")
+
+
 def in_another_process(fn, *args, what: str):
     """`fn(*args)` in a fresh spawned process, the way worker processes rebuild the user's objects."""
     picklable(args, what)
+    spawnable(f"{what}: another process")
     with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
         try:
             return pool.submit(fn, *args).result()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
 import signal
 import time
@@ -15,10 +14,12 @@ import torch
 
 from goldenticket.errors import OptionError, UserError
 from goldenticket.factories import call_users, picklable
+from goldenticket.local_pool import LocalPool, WorkerDied
 from goldenticket.noise import NoiseSource
+from goldenticket.objectives import OBJECTIVES, PROGRESS_OBJECTIVES
 from goldenticket.policies import NoisePolicy, for_task, load_policy, policy_label
-from goldenticket.tasks import OBJECTIVES, Task
-from goldenticket.tasks.base import PROGRESS_OBJECTIVES, observation_digest, stack
+from goldenticket.tasks import Task
+from goldenticket.tasks.base import observation_digest, stack
 
 
 @dataclass(frozen=True)
@@ -150,8 +151,8 @@ def _run_shard(shard: tuple[str, list[Episode]]) -> list[EpisodeResult]:
     return rollout(w["policy"], w["tasks"][task], episodes, w["objective"], w["envs"][task])
 
 
-def _local_pool(workers: int, initializer, initargs: tuple, address: None):
-    return mp.get_context("spawn").Pool(workers, initializer, initargs)
+def _local_pool(workers: int, initializer, initargs: tuple, address: None) -> LocalPool:
+    return LocalPool(workers, initializer, initargs)
 
 
 def _ray_pool(workers: int, initializer, initargs: tuple, address: str | None):
@@ -211,10 +212,16 @@ class Engine:
         else:
             runs = self._pool.imap(_run_shard, shards)
         results: list[EpisodeResult] = []
-        for start, shard_results in zip(starts, runs, strict=True):
-            results += shard_results
-            if on_shard:
-                on_shard(start, shard_results)
+        try:
+            for start, shard_results in zip(starts, runs, strict=True):
+                results += shard_results
+                if on_shard:
+                    on_shard(start, shard_results)
+        except WorkerDied as exc:  # hand on the shards that came back before it
+            for index, shard_results in sorted(exc.finished.items()):
+                if on_shard:
+                    on_shard(starts[index], shard_results)
+            raise UserError(f"{exc} while running episodes of {self.label!r} on {task!r}") from None
         return results
 
     def close(self) -> None:
