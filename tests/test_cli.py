@@ -1,14 +1,13 @@
 import json
 import os
 import warnings
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from safetensors.numpy import save_file
 
 from goldenticket.cli import main
-from goldenticket.tickets import Ticket, TicketRecord
+from goldenticket.tickets import ZERO_SOURCE, Ticket, TicketRecord
 
 TASK = "metaworld/pick-place-v3"
 
@@ -223,9 +222,9 @@ def test_tickets_written_before_p_vs_base_list_the_same(search_run):
     from goldenticket.report import ticket_table
 
     ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"])
-    held = ticket.metadata["heldout"]
-    old = SimpleNamespace(id=ticket.id, metadata=ticket.metadata | {
-        "heldout": {k: v for k, v in held.items() if k != "p_vs_base"} | {"p_value": held["p_vs_base"]}})
+    held = ticket.record.heldout
+    old = ticket.with_record(heldout={k: v for k, v in held.items() if k != "p_vs_base"} | {
+        "p_value": held["p_vs_base"]})
     assert ticket_table([old]) == ticket_table([ticket])
 
 
@@ -233,7 +232,7 @@ def test_a_shipped_zero_ticket_lists_without_a_search_score(search_run):
     from goldenticket.report import ticket_table
 
     ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"])
-    zero = SimpleNamespace(id="000000000000", metadata=ticket.metadata | {"search_score": None})
+    zero = ticket.with_record(search_score=None, source=ZERO_SOURCE)
     assert ticket_table([zero]).splitlines()[1].split()[2] == "-"
 
 

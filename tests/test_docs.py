@@ -64,3 +64,17 @@ def test_no_tracker_numbers_in_the_repositorys_text():
                          r"|(?<![\w&#\"'])#\d{1,5}\b", re.I)
     found = [f"{p.relative_to(ROOT)}: {m.group(0)}" for p in texts for m in tracker.finditer(p.read_text())]
     assert not found
+
+
+def test_the_concepts_page_lists_every_search_methods_settings_with_their_defaults():
+    from dataclasses import fields
+
+    from goldenticket.config import METHODS
+
+    page = (ROOT / "docs" / "concepts.md").read_text()
+    for name, cls in METHODS.items():
+        for f in fields(cls):
+            default = "-" if f.default is None else f.default
+            own = f"| `{name}` | `{f.name}` | {default} |"
+            inherited = [base for base in METHODS if f"| `{name}` | and every `{base}` setting" in page]
+            assert own in page or any(f"| `{base}` | `{f.name}` | {default} |" in page for base in inherited)

@@ -6,6 +6,7 @@ import os
 import socket
 import stat
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
 from goldenticket.job import find_golden_tickets
+from goldenticket.stats import Rate
 
 HERE = Path(__file__).parent
 BYO = ["--policy", "byo_example:make_policy", "--task", "byo_example:make_env", "--max-steps", "10"]
@@ -85,8 +87,10 @@ def drawn(monkeypatch) -> list:
     return figures
 
 
-def _rate(p: float, **tests) -> dict:
-    return {"success_rate": p, "ci_low": p - 0.1, "ci_high": p + 0.1, "n": 20} | tests
+def _rate(p: float, p_vs_base: float | None = None, golden: bool = False, low: float = 0.1,
+          high: float = 0.1) -> SimpleNamespace:
+    """An arm as arms_png reads it: a rate and whether it is golden."""
+    return SimpleNamespace(rate=Rate(0, 20, p, max(p - low, 0), min(p + high, 1)), golden=golden)
 
 
 def _legend(ax) -> list[str]:
@@ -199,7 +203,7 @@ def test_verdict_draws_the_zero_ticket_once(tmp_path, drawn):
 
 
 def test_verdict_success_axis_stays_within_0_and_100_percent(tmp_path, drawn):
-    rows = {"base": _rate(0.0) | {"ci_low": 0.0}, "ticket aaa": _rate(1.0, golden=True) | {"ci_high": 1.0}}
+    rows = {"base": _rate(0.0), "ticket aaa": _rate(1.0, golden=True)}
     plots.arms_png(rows, tmp_path / "v.png", "title")
     ax = drawn[0].axes[0]
     assert ax.spines["bottom"].get_bounds() == (0, 1) and not ax.spines["top"].get_visible()

@@ -79,3 +79,21 @@ def test_base_and_zero_both_over_the_limit_stop_the_run_naming_both_arms():
     ticket = Constant(np.ones((4, 2), np.float32))
     with pytest.raises(UserError, match=says):
         _judged("byo_example:make_nan_policy", {"zero": ZERO, "ticket": ticket})
+
+
+@pytest.mark.slow
+def test_a_search_whose_judged_ticket_breaks_the_policy_delivers_a_verdict(tmp_path):
+    """A candidate that drives the policy to NaN on most held-out seeds is judged failing and passed
+    over: the search still ends in its verdict."""
+    from goldenticket.tickets import Ticket
+
+    breaking = np.zeros((4, 2), np.float32)
+    breaking[0, 0] = 3.0
+    given = Ticket(breaking).save(tmp_path / "breaking.safetensors")
+    summary = goldenticket.search(NoiseBreaks(), make_env, tmp_path / "run", method="rs", budget=8,
+                                  search_seeds=2, heldout=30, top_k=10, validation_seeds=4,
+                                  tickets=[str(given)], max_steps=10, workers=1)
+    judged = {t.source: t for t in summary.tickets}
+    broken = judged[f"given: {given}"].heldout
+    assert broken.nonfinite > 0.5 * 30 and not broken.golden
+    assert summary.best.source != f"given: {given}" and summary.base.nonfinite <= 0.1 * 30

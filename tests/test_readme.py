@@ -2,6 +2,7 @@
 numbers README gives for them) or in CI (`.ci/run`: install, tests, docs, LeRobot's venv).
 README's Python blocks run in test_byo.py and test_deploy.py."""
 
+import json
 import re
 import subprocess
 from pathlib import Path
@@ -66,6 +67,8 @@ def test_readme_demo_and_its_fresh_seed_check_print_what_readme_says(tmp_path):
     ticket_id = re.search(r"--ticket demo-out/tickets/(\w{12})\.safetensors", README).group(1)
     assert re.search(rf"ticket {ticket_id} +{re.escape(ticket).replace(' ', ' +')} +300 +{p} ", printed)
     assert re.search(rf"base +{re.escape(base).replace(' ', ' +')} +300 ", printed)
+    spent = json.loads((tmp_path / "demo-out" / "summary.json").read_text())["search_episodes"]
+    assert f"(it spends {spent}:" in " ".join(README.split())  # what the search spends, not only its budget
     deploy = re.search(r"## Deploy a ticket.*?```python\n(.*?)```", README, re.S).group(1)
     assert f"demo-out/tickets/{ticket_id}.safetensors" in deploy  # the ticket the demo wrote, deployed
     assert _run(f"python - <<'EOF'\n{deploy}EOF", tmp_path) == "(4, 4)\n"

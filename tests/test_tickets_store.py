@@ -350,3 +350,14 @@ def test_open_folder_says_what_is_in_the_way(tmp_path, monkeypatch):
     for out in (Path("a/b"), "a/b", tmp_path / "linked", "linked/c", "."):
         open_folder(out)
         assert Path(out).is_dir()
+
+
+def test_every_shipped_ticket_reads_into_its_record_and_writes_back_byte_for_byte(tmp_path):
+    root = Path(__file__).parents[1]
+    shipped = [*(root / "src/goldenticket/policies/bundled").rglob("tickets/*.safetensors"),
+               *(root / "benchmarks/results").rglob("*.safetensors")]
+    assert len(shipped) > 30
+    for path in shipped:
+        ticket = Ticket.load(path)
+        assert ticket.record.policy_fingerprint and ticket.record.heldout, path
+        assert ticket.save(tmp_path / "again.safetensors").read_bytes() == path.read_bytes(), path

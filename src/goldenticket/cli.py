@@ -364,7 +364,7 @@ def _evaluate(args) -> int:
     if args.plot is not None:
         task = cfg.task or found_under([Ticket.load(p) for p in paths], {"task": None})["task"]
         title = f"{cfg.policy} on {task}, seeds {cfg.seeds.start}:{cfg.seeds.stop}"
-        arms_png(to_dicts(arms), args.plot, title, best=f"ticket {best}")
+        arms_png(arms, args.plot, title, best=f"ticket {best}")
     if args.json:
         print(json.dumps(to_dicts(rows), indent=2))
     else:

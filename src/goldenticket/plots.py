@@ -5,7 +5,7 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from matplotlib.container import ErrorbarContainer
 from matplotlib.figure import Figure
@@ -16,6 +16,7 @@ from matplotlib.transforms import blended_transform_factory
 from goldenticket.evaluation import ZERO_MARK
 from goldenticket.files import write_atomic
 from goldenticket.report import gain_text, short_task
+from goldenticket.stats import Rate
 
 if TYPE_CHECKING:
     from goldenticket.evaluation import MultitaskVerdict
@@ -27,7 +28,14 @@ ARMS = {"base": "base (Gaussian noise)", "zero ticket": "zero ticket", "golden":
 LABEL_BOX = {"boxstyle": "square,pad=0.1", "facecolor": "white", "edgecolor": "none"}  # over the base line
 
 
-def arms_png(rows: dict[str, dict], path: Path, title: str, what: str = "held-out success",
+class Arm(Protocol):
+    """What a verdict picture draws of an arm: an `evaluation.VerdictRow`, or a session's arm."""
+
+    rate: Rate
+    golden: bool
+
+
+def arms_png(rows: dict[str, Arm], path: Path, title: str, what: str = "held-out success",
              unit: str = "seeds", best: str | None = None) -> Path:
     """One row per arm (base, zero ticket, tickets): held-out success with its 95% Wilson
     interval on an axis from 0% to 100%; golden tickets in gold, the base rate as a dashed line,
@@ -37,18 +45,18 @@ def arms_png(rows: dict[str, dict], path: Path, title: str, what: str = "held-ou
     fig = Figure(figsize=(8.5, 1.4 + 0.45 * len(rows)))
     ax = fig.subplots()
     for y, (label, r) in enumerate(rows.items()):
-        rate = r["success_rate"]
-        ax.errorbar(rate, y, xerr=[[rate - r["ci_low"]], [r["ci_high"] - rate]], fmt="o", capsize=4,
+        rate = r.rate.success_rate
+        ax.errorbar(rate, y, xerr=[[rate - r.rate.ci_low], [r.rate.ci_high - rate]], fmt="o", capsize=4,
                     color=COLORS[_kind(label, r)], label=ARMS[_kind(label, r)])
         ax.annotate(f"{rate:.1%}", (rate, y), xytext=(0, 6), textcoords="offset points", fontsize="small",
                     ha="left" if rate < 0.1 else "right" if rate > 0.9 else "center", bbox=LABEL_BOX)
-    ax.axvline(rows["base"]["success_rate"], color=COLORS["base"], linestyle="--", linewidth=1,
+    ax.axvline(rows["base"].rate.success_rate, color=COLORS["base"], linestyle="--", linewidth=1,
                label="base rate")
     ax.set_yticks(range(len(rows)), list(rows))
     if best in rows:
-        _star(ax, rows[best]["success_rate"], list(rows).index(best), "chosen ticket")
+        _star(ax, rows[best].rate.success_rate, list(rows).index(best), "chosen ticket")
         ax.get_yticklabels()[list(rows).index(best)].set_fontweight("bold")
-    n = rows["base"]["n"]  # the limits leave room for a marker at 0% or 100% and the first row's rate
+    n = rows["base"].rate.n  # the limits leave room for a marker at 0% or 100% and the first row's rate
     ax.set(xlim=(-0.04, 1.04), ylim=(len(rows) - 0.5, -0.7), xticks=[i / 5 for i in range(6)],
            title=title, xlabel=f"{what}, 95% Wilson interval (n = {n} {unit})")
     _success_axis(ax)
@@ -65,17 +73,17 @@ def _success_axis(ax) -> None:
     ax.xaxis.set_major_formatter(PercentFormatter(1.0))
 
 
-def _zero_once(rows: dict[str, dict]) -> dict[str, dict]:
+def _zero_once(rows: dict[str, Arm]) -> dict[str, Arm]:
     """`rows` without the zero-ticket arm where the zero ticket is also judged as a ticket."""
     judged = any(label.endswith(ZERO_MARK) for label in rows)
     return {label: r for label, r in rows.items() if not (judged and label == "zero ticket")}
 
 
-def _kind(label: str, row: dict) -> str:
+def _kind(label: str, row: Arm) -> str:
     """The arm's colour and legend entry: base, zero ticket, golden or ticket."""
     if label in COLORS:
         return label
-    if row.get("golden"):
+    if row.golden:
         return "golden"
     return "zero ticket" if label.endswith(ZERO_MARK) else "ticket"
 

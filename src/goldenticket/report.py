@@ -105,9 +105,9 @@ def ticket_table(tickets: list) -> str:
     seeds where measured."""
     rows = []
     for t in tickets:
-        held, score = t.metadata["heldout"], t.metadata["search_score"]
-        fresh = t.metadata.get("fresh")
-        rows.append((t.metadata["policy"], t.id, "-" if score is None else f"{score:.0%}", rate_text(held, 6),
+        held, score = t.record.heldout, t.record.search_score
+        fresh = t.record.extra.get("fresh")  # measured by benchmarks/existence.py
+        rows.append((t.record.policy, t.id, "-" if score is None else f"{score:.0%}", rate_text(held, 6),
                      f"{p_vs_base(held):.2g}", f"{held['seeds'][0]}:{held['seeds'][1] + 1}",
                      rate_text(fresh, 6) if fresh else "-"))
     return _columns(("policy", "ticket", "search", "held-out success", "p vs base", "seeds",

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from goldenticket.config import SearchConfig, named, to_toml
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Judged, adjust_for_multiplicity, multitask_verdict, to_dicts
+from goldenticket.evaluation import Judged, adjust_for_multiplicity, multitask_verdict
 from goldenticket.files import open_folder, write_atomic
 from goldenticket.job.plan import Names, Plan
 from goldenticket.plots import arms_png, search_png, tasks_png
@@ -105,7 +105,7 @@ def pictures(plan: Plan, result: Summary | MultitaskSummary, search: SearchResul
                   f"{names.policy}: one ticket for {len(result.verdict.tasks)} tasks")
         judged, best = result.verdict.tickets, result.verdict.best
     else:
-        arms_png(to_dicts(result.rows()), out / "verdict.png", title, best=f"ticket {result.best.label}")
+        arms_png(result.rows(), out / "verdict.png", title, best=f"ticket {result.best.label}")
         judged, best = [t.id for t in result.tickets], result.best.id
     span = result.run.heldout_seeds
     search_png([c.mean_return for c in search.candidates], [c.n for c in search.candidates],

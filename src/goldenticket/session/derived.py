@@ -45,7 +45,7 @@ def save_verdict(folder: Path, name: str, plan: Plan, verdict: SessionVerdict,
     from goldenticket.plots import arms_png
 
     stopped = "" if plan.stopping == "fixed" else f" ({verdict.stopping.reason})"
-    arms_png(verdict.rows(), png, f"Session {name}: {plan.policy}{stopped}", what="confirm-phase success",
+    arms_png(verdict.arms, png, f"Session {name}: {plan.policy}{stopped}", what="confirm-phase success",
              unit="episodes per arm")
     write_atomic(summary, text)  # last: a summary.json that matches says verdict.png is written
 

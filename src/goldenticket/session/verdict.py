@@ -33,6 +33,10 @@ class ArmVerdict:
     def golden(self) -> bool:
         return self.decision == "golden"
 
+    @property
+    def rate(self) -> Rate:
+        return self.row.rate
+
     def to_dict(self) -> dict:
         """The arm as summary.json writes it: the rate, then a finalist's p-value, test and
         decision (no non-finite count: a robot's episode has none)."""
