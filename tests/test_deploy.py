@@ -84,9 +84,10 @@ def test_one_policy_has_one_identity_from_the_cli_and_the_api(mine, tmp_path):
                                   budget=120, search_seeds=10, heldout=40, top_k=1, validation_seeds=0,
                                   workers=1).to_dict()
     ticket = summary["best"]["ticket_path"]
-    # neither --task nor --max-steps: the ticket's own, so the verdict's numbers come back exactly
-    done = _cli(tmp_path, "evaluate", "--policy", "mine:make_policy", "--ticket", ticket,
-                "--seeds", "1000000:1000040", "--workers", "1", "--json")
+    # no --max-steps: the ticket's own, so the verdict's numbers come back exactly (a ticket's task
+    # that is code, here mine:make_env, the user names: a ticket never runs code)
+    done = _cli(tmp_path, "evaluate", "--policy", "mine:make_policy", "--task", "mine:make_env", "--ticket",
+                ticket, "--seeds", "1000000:1000040", "--workers", "1", "--json")
     assert done.returncode == 0, done.stderr
     rows = json.loads(done.stdout)
     assert rows["base"]["success_rate"] == summary["base"]["success_rate"]
@@ -99,8 +100,8 @@ def test_a_setting_that_contradicts_the_tickets_is_refused_with_both_values(mine
                                   budget=40, search_seeds=10, heldout=10, top_k=1, validation_seeds=0,
                                   workers=1)
     ticket = summary.best.path
-    argv = ["evaluate", "--policy", "mine:make_policy", "--ticket", ticket, "--seeds", "1000000:1000010",
-            "--workers", "1", "--max-steps", "1000"]
+    argv = ["evaluate", "--policy", "mine:make_policy", "--task", "mine:make_env", "--ticket", ticket,
+            "--seeds", "1000000:1000010", "--workers", "1", "--max-steps", "1000"]
     capsys.readouterr()
     assert main(argv) == 2
     refused = capsys.readouterr().err

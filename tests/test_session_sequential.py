@@ -16,6 +16,7 @@ from scipy.integrate import quad
 from test_session import _client, _free_port, _plan, _server
 
 from goldenticket import stats
+from goldenticket.config import DEFAULT_CONFIRM
 from goldenticket.errors import OptionError, UserError
 from goldenticket.session import Client, Plan, ScoreConflict, Session
 from goldenticket.session import race as rules
@@ -241,7 +242,7 @@ def test_session_new_takes_the_stopping_rule_and_alpha(tmp_path, capsys):
         main(["session", "new", "--help"])
     text = " ".join(capsys.readouterr().out.split())  # every placeholder filled, the plan's defaults
     assert "%(" not in text and "%%" not in text and text.count("{") == text.count("{sequential,fixed}")
-    assert f"(default {rules.DEFAULT_CONFIRM['sequential']}, so never more episodes than fixed)" in text
+    assert f"(default {DEFAULT_CONFIRM['sequential']}, so never more episodes than fixed)" in text
 
 
 def test_the_http_api_says_what_is_due_and_why_the_session_stopped(tmp_path):

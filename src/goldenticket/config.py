@@ -279,7 +279,8 @@ class EvaluateConfig(EngineOptions):
     """Base, zero ticket and tickets judged on held-out seeds."""
 
     policy: str | object = option(help=POLICY_HELP)
-    task: str | Callable | None = option(None, TASK_HELP + " (default: the task the tickets were found on)")
+    task: str | Callable | None = option(None, TASK_HELP + " (default: the task the tickets were found on, "
+                                         "if it is a built-in task; a ticket never names code to run)")
     tickets: tuple[str | Path, ...] | str | Path = option(
         (), "ticket file or bundled ticket id; repeat for several; without it, only the base and the zero "
         "ticket run", action="append", flag="--ticket", metavar="TICKET")

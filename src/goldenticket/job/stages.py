@@ -24,6 +24,8 @@ from goldenticket.ticket_search import OPTIMIZERS, Optimizer, SearchResult, quer
 from goldenticket.tickets import Ticket, ticket_id
 
 Evaluate = Callable  # the driver's evaluate(queries) -> outcomes
+STOPPED = {"budget": "the next tickets did not fit whole",  # why a search spent less than its budget
+           "k perfect tickets": "tickets perfect on every seed"}
 
 
 def run_tickets(evaluator: Evaluator, fingerprint: str) -> Callable:
@@ -72,7 +74,8 @@ def search(plan: Plan, evaluator: Evaluator, optimizer: Optimizer,
         result = run_search(optimizer, watch(evaluate), budget=cfg.budget,
                             stop_after_perfect=cfg.stop_after_perfect, max_tickets=cfg.max_tickets)
         if result.episodes_used < cfg.budget:
-            bar.set_postfix_str(f"{result.episodes_used} of {cfg.budget} spent: {result.stopped_because}")
+            bar.set_postfix_str(f"{result.episodes_used} of {cfg.budget} spent: "
+                                + STOPPED.get(result.stopped_because, result.stopped_because))
     return result
 
 
