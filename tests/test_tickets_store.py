@@ -361,3 +361,13 @@ def test_every_shipped_ticket_reads_into_its_record_and_writes_back_byte_for_byt
         ticket = Ticket.load(path)
         assert ticket.record.policy_fingerprint and ticket.record.heldout, path
         assert ticket.save(tmp_path / "again.safetensors").read_bytes() == path.read_bytes(), path
+
+
+def test_a_record_says_how_its_ticket_came():
+    from goldenticket.tickets import ZERO_SOURCE
+
+    assert zero_ticket((2, 2)).record.provenance == "zero"
+    assert TicketRecord(source=ZERO_SOURCE).provenance == "zero"
+    assert TicketRecord(source="given: runs/a/tickets/x.safetensors").provenance == "given"
+    assert TicketRecord(method="cma-es", search_score=0.5).provenance == "search"
+    assert TicketRecord().provenance == "unknown"  # made by hand

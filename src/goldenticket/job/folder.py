@@ -16,7 +16,7 @@ from goldenticket.plots import arms_png, search_png, tasks_png
 from goldenticket.results import FoundTicket, MultitaskSummary, ParetoFront, SearchRun, Summary
 from goldenticket.store import RunStore
 from goldenticket.ticket_search import SearchResult
-from goldenticket.tickets import ZERO_SOURCE, Ticket
+from goldenticket.tickets import Ticket
 
 
 def open_store(out: str | Path, plan: Plan) -> RunStore:
@@ -48,7 +48,7 @@ def save_ranked(tickets: list[Ticket], judged: dict[str, Judged], out: Path, spa
     ticket id, if it has one); best first: by success, the zero ticket before any ticket it ties
     (it needs no search, so a tie is no evidence for the other), then by p."""
     ranked = sorted(tickets, key=lambda t: (-judged[t.id].rate.success_rate,
-                                            t.record.source != ZERO_SOURCE, judged[t.id].p_vs_base))
+                                            t.record.provenance != "zero", judged[t.id].p_vs_base))
     found = []
     for t in ranked:
         row = judged[t.id].row()
