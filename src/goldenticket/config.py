@@ -24,7 +24,7 @@ from goldenticket.factories import import_name
 from goldenticket.objectives import FRONT_OBJECTIVES, OBJECTIVES
 from goldenticket.seeds import SEED_SETS
 
-MAX_NONFINITE = 0.1  # default: stop once more than this fraction of an arm's held-out episodes is non-finite
+MAX_NONFINITE = 0.1  # default: stop once base and zero ticket both pass this fraction of non-finite episodes
 SINKS = {"tensorboard": "tensorboard", "wandb": "wandb"}  # a `log` sink (tracking.py) -> the package it needs
 SEEDS_END = max(block.stop for block in SEED_SETS.values())  # every seed set lies in 0:SEEDS_END
 DEFAULT_CONFIRM = {"sequential": 70, "fixed": 50}  # a session's confirm episodes per stopping rule (never
@@ -144,8 +144,9 @@ class EngineOptions:
     address: str | None = option(None, "Ray cluster address, e.g. ray://head:10001 (default: start a "
                                  "local Ray instance)")
     max_nonfinite: float = option(MAX_NONFINITE, "an episode whose policy call returns NaN or infinite "
-                                  "actions ends as a failure; stop when more than this fraction of an "
-                                  "arm's held-out episodes end so")
+                                  "actions ends as a failure of its arm; stop (the policy or its adapter "
+                                  "broken) only when more than this fraction of the held-out episodes of "
+                                  "both the base and the zero ticket end so")
 
     def check(self) -> None:  # workers: the engine knows this machine's limit (rollout.Engine)
         check_max_nonfinite(self.max_nonfinite)
@@ -169,8 +170,9 @@ class SearchConfig(EngineOptions):
     method: str = option("cma-es", "random search, CEM, zeroth-order search, CEM raced by halving "
                          "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES",
                          choices=tuple(METHODS))
-    budget: int = option(850, "search episodes to spend (per task for transfer); with the default "
-                         "validation, 1250 episodes before the verdict")
+    budget: int = option(850, "search episodes to spend at most (per task for transfer); a ticket never "
+                         "runs on only some seeds, so the default search spends 840, and with the "
+                         "default validation 1240 episodes before the verdict")
     seed: int = option(0, "seed of every random draw")
     search_seeds: int = option(20, "initial states to search on (per task)")
     heldout: int = option(200, "held-out initial states (per task) to judge base, zero ticket and tickets on")
