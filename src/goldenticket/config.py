@@ -1,5 +1,6 @@
-"""Every option of a search, an evaluation and a training run, once: typed fields with their
-defaults and help.
+"""Every option of a search, an evaluation, a training run, a transfer and a real-robot session,
+and every search method's settings, once: typed fields with their defaults and help. Pure data and
+checks: it imports nothing of goldenticket's but errors, factories, seeds and objectives.
 
 The command line's flags are generated from these fields (`cli.py`: field `search_seeds` is
 `--search-seeds`), a run can be given as a TOML file whose keys are the fields, and every search's
