@@ -44,8 +44,9 @@ def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
     ("base", "zero", ticket ids), with its Wilson interval, Holm-adjusted paired p-values and each
     seed's success (`row.to_dict()` is what `evaluate --json` prints). `task`, `max_steps` and
     `success` default to those the tickets were found under (a task or predicate that is code, an
-    import string, only when given here: a ticket never runs code it names). `options`: the other fields of `config.EvaluateConfig` (seed, max_steps,
-    success, allow_transfer, mixture, epsilon, workers, backend, address, max_nonfinite)."""
+    import string, only when given here: a ticket never runs code it names). `options`: the other
+    fields of `config.EvaluateConfig` (seed, max_steps, success, allow_transfer, mixture, epsilon,
+    workers, backend, address, max_nonfinite)."""
     from goldenticket.config import EvaluateConfig, make
     from goldenticket.job.evaluate import evaluate_tickets
 
