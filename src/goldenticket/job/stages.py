@@ -15,6 +15,7 @@ import numpy as np
 from goldenticket.errors import OptionError
 from goldenticket.evaluation import Evaluator, Judged, judge, judge_size
 from goldenticket.files import write_atomic
+from goldenticket.job.folder import ticket_path
 from goldenticket.job.plan import Plan
 from goldenticket.job.records import searched
 from goldenticket.noise import Constant
@@ -140,7 +141,7 @@ def front(plan: Plan, evaluator: Evaluator, result: SearchResult, out: Path) -> 
     def save(candidate, front_record: dict) -> str:
         ticket = searched(plan, result, candidate)
         fronts[ticket.id] = front_record
-        return str(ticket.with_record(front=front_record).save(out / "tickets" / f"{ticket.id}.safetensors"))
+        return str(ticket.with_record(front=front_record).save(ticket_path(out, ticket)))
 
     with evaluator.progress(None, "Pareto front"):  # its size is known only once found
         study = pareto_study(evaluator, scored, (cfg.objective, cfg.front_objective),

@@ -19,13 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from goldenticket.config import DEFAULT_CONFIRM
 from goldenticket.errors import OptionError, flags_in
 from goldenticket.tickets import ticket_id
 
 BASE = "base"
 MAX_EPISODES = 100_000
 MAX_CAP = 1000  # pairs under sequential stopping: its test is calibrated exactly over the cap
-STOPPING = ("sequential", "fixed")
 FIRST_ROUND, ROUND, DROP_Z = 10, 2, 1.5  # the race (benchmarks/session_sequential.py chose them)
 FUTILITY = (0.7, 0.2)  # (q1, beta) of the confirm test's futility stop (stats.sequential_sign_test)
 
@@ -51,8 +51,8 @@ class Plan:
     alpha: float = 0.05
 
     def __post_init__(self) -> None:
-        if self.stopping not in STOPPING:
-            raise PlanError(f"stopping must be one of {', '.join(STOPPING)}, got {self.stopping!r}",
+        if self.stopping not in DEFAULT_CONFIRM:  # the stopping rules, each with its confirm default
+            raise PlanError(f"stopping must be one of {', '.join(DEFAULT_CONFIRM)}, got {self.stopping!r}",
                             "stopping")
         if not 0 < self.alpha < 1:
             raise PlanError(f"alpha must be between 0 and 1, got {self.alpha}", "alpha")
