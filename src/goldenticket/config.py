@@ -173,7 +173,7 @@ class SearchConfig(EngineOptions):
                          choices=tuple(METHODS))
     budget: int = option(850, "search episodes to spend at most (per task for transfer); a ticket never "
                          "runs on only some seeds, so the default search spends 840, and with the "
-                         "default validation 1240 episodes before the verdict")
+                         "default validation at most 1240 episodes before the verdict")
     seed: int = option(0, "seed of every random draw")
     search_seeds: int = option(20, "initial states to search on (per task)")
     heldout: int = option(200, "held-out initial states (per task) to judge base, zero ticket and tickets on")
