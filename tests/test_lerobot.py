@@ -62,7 +62,7 @@ def refusal(capsys, policy: str) -> str:
     ({"type": "act"}, "type 'act' takes no initial noise"),
     ({"type": "vqbet"}, "type 'vqbet' takes no initial noise"),
     ({"type": "tdmpc"}, "type 'tdmpc' takes no initial noise"),
-    ({"type": "pi0"}, "type 'pi0' is not supported"),
+    ({"type": "groot"}, "type 'groot' draws its noise inside"),
     ({"noise_scheduler_type": "DDPM"}, 'set "noise_scheduler_type": "DDIM"'),
 ])
 def test_policies_a_ticket_cannot_steer_are_refused(tmp_path, capsys, config, says):
@@ -128,7 +128,7 @@ def lerobot_checkpoint(folder: Path, *, images: bool = False, **config) -> Path:
         inputs["observation.image"] = PolicyFeature(FeatureType.VISUAL, (3, 64, 64))
     settings = {"down_dims": (16, 32), "diffusion_step_embed_dim": 16, "noise_scheduler_type": "DDIM",
                 "num_inference_steps": 3, "horizon": 8, "n_action_steps": 4, "crop_shape": None,
-                "device": "cpu", "push_to_hub": False} | config
+                "device": "cpu", "push_to_hub": False, "pretrained_backbone_weights": None} | config
     outputs = {"action": PolicyFeature(FeatureType.ACTION, (4,))}
     cfg = DiffusionConfig(input_features=inputs, output_features=outputs, **settings)
     torch.manual_seed(0)

@@ -55,7 +55,7 @@ def rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode],
     policy acts conditioned on `task`. An exception in the policy's or env's code is a one-line
     UserError naming the call and the user's file and line.
     """
-    policy, n = for_task(policy, task.name), len(episodes)
+    policy, n = for_task(policy, task), len(episodes)
     acting, resetting, stepping = (f"policy {policy_label(policy)!r}: act()", f"task {task.name!r}: reset()",
                                    f"task {task.name!r}: step()")
     envs = [] if envs is None else envs

@@ -113,7 +113,7 @@ def checked_tasks(policy: NoisePolicy, cfg: SearchConfig) -> list:
     if len({t.name for t in tasks}) < len(tasks):
         raise OptionError("a task is given twice", "task")
     for task in tasks:
-        for_task(policy, task.name)
+        for_task(policy, task)
         task.check()
     return tasks
 

@@ -68,7 +68,7 @@ def load_policy(name: str | NoisePolicy) -> NoisePolicy:
     base, steps = split_steps(name)
     path = Path(base)
     if lerobot.is_checkpoint(path):
-        return lerobot.LeRobotPolicy(path, steps, name)
+        return lerobot.load(path, steps, name)
     if not (path / "config.json").is_file():
         path = _bundled(base)
     policy = MLPPolicy.load(path)
@@ -98,12 +98,20 @@ def _bundled(base: str) -> Path:
     return BUNDLED_DIR / base
 
 
-def for_task(policy: NoisePolicy, task: str) -> NoisePolicy:
-    """A multi-task policy (one with `tasks` and `conditioned(task)`) conditioned on `task`; any
-    other policy as it is."""
+def for_task(policy: NoisePolicy, task) -> NoisePolicy:
+    """The policy acting on `task` (a Task, or a task name): a language policy (one with
+    `instructed(text)`) given the task's `instruction`, a multi-task policy (one with `tasks` and
+    `conditioned(name)`) conditioned on its name; any other policy as it is."""
+    name = task if isinstance(task, str) else task.name
+    if callable(getattr(policy, "instructed", None)):
+        instruction = getattr(task, "instruction", None)
+        if not instruction:
+            raise UserError(f"policy {policy_label(policy)!r} reads a language instruction, and task "
+                            f"{name!r} gives none (a task's instruction: docs/contracts.md)")
+        return policy.instructed(instruction)
     if not (getattr(policy, "tasks", None) and callable(getattr(policy, "conditioned", None))):
         return policy
-    return policy.conditioned(task)
+    return policy.conditioned(name)
 
 
 def _checked(policy, name: str) -> NoisePolicy:
