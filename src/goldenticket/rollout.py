@@ -125,7 +125,7 @@ def checked_actions(policy: NoisePolicy, actions: np.ndarray, batch: int) -> np.
     """The policy's actions if they have the contract's shape [B, n_exec, A] and are real numbers
     (NaN and infinities included: rollout ends those episodes)."""
     actions = np.asarray(actions)
-    expected = (batch, policy.n_exec, policy.noise_shape[1])
+    expected = (batch, policy.n_exec, getattr(policy, "action_dim", policy.noise_shape[1]))
     if actions.shape != expected:
         raise UserError(f"policy {policy_label(policy)!r} returned actions of shape {actions.shape}; the "
                         f"NoisePolicy contract asks for [B, n_exec, A] = {expected}")

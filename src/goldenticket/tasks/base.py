@@ -13,19 +13,21 @@ import numpy as np
 
 
 def observation_digest(obs) -> str:
-    """sha256 of one observation: an array, or a dict of arrays key by key (in sorted order)."""
+    """sha256 of one observation: an array, or a dict of arrays (or of such dicts: cameras) key by
+    key, in sorted order."""
     digest = hashlib.sha256()
     parts = obs.items() if isinstance(obs, dict) else [("", obs)]
     for key, value in sorted(parts, key=lambda kv: kv[0]):
-        digest.update(json.dumps(key).encode() + np.ascontiguousarray(value).tobytes())
+        data = observation_digest(value).encode() if isinstance(value, dict) else np.ascontiguousarray(value)
+        digest.update(json.dumps(key).encode() + (data if isinstance(data, bytes) else data.tobytes()))
     return digest.hexdigest()
 
 
 def stack(observations: list, join: Callable = np.stack) -> np.ndarray | dict[str, np.ndarray]:
-    """One batch from per-env observations (arrays, or dicts of arrays joined key by key);
-    `join=np.concatenate` joins batches into one."""
+    """One batch from per-env observations (arrays, or dicts of arrays or of such dicts, joined key by
+    key); `join=np.concatenate` joins batches into one."""
     if isinstance(observations[0], dict):
-        return {key: join([o[key] for o in observations]) for key in observations[0]}
+        return {key: stack([o[key] for o in observations], join) for key in observations[0]}
     return join(observations)
 
 

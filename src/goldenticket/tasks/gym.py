@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -60,6 +61,14 @@ class GymTask:
     def name(self) -> str:
         """The import string of the factory: what tickets record as their task."""
         return self.factory if isinstance(self.factory, str) else import_name(self.factory)
+
+    @cached_property
+    def instruction(self) -> str | None:
+        """The env's language instruction, for a policy that reads one: its `task_description`, as
+        LeRobot's envs name it (else `task`), read from one env built for it; None if it has neither."""
+        env = getattr(self.make_env()._env, "unwrapped", None)
+        text = getattr(env, "task_description", None) or getattr(env, "task", None)
+        return text if isinstance(text, str) else None
 
     def make_env(self) -> GymEnv:
         quiet_env_warnings()

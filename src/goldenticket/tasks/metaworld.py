@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import copy
 import ctypes.util
+import json
 import os
 from collections import OrderedDict
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +34,12 @@ def _prefer_offscreen_gl() -> None:
 
 
 _prefer_offscreen_gl()  # on import of goldenticket.tasks: before anything here imports MuJoCo
+
+
+@cache
+def instructions() -> dict[str, str]:
+    """Each env's language instruction, as LeRobot's Meta-World env passes it to a policy as "task"."""
+    return json.loads((Path(__file__).parent / "metaworld_instructions.json").read_text())
 
 
 def task_names() -> list[str]:
@@ -260,6 +268,11 @@ class MetaWorldTask:
     @property
     def env_name(self) -> str:
         return self.name.split("/", 1)[1]
+
+    @property
+    def instruction(self) -> str:
+        """What a language policy is told: LeRobot's description of this Meta-World env."""
+        return instructions()[self.env_name]
 
     def make_env(self) -> MetaWorldEnv:
         return MetaWorldEnv(self.env_name)

@@ -92,6 +92,7 @@ class LeRobotPolicy:
                 cfg, pretrained_path=str(self.path), preprocessor_overrides=on_device)
         self.cfg, self.name = cfg, name or str(path)
         self.n_exec, self.n_obs_steps = cfg.n_action_steps, cfg.n_obs_steps
+        self.action_dim = cfg.action_feature.shape[0]  # a VLA pads its noise past it
         self.instruction = ""  # what LeRobot's eval passes as "task" for an env without one
         self._digest = files_digest(self.path)
 
@@ -110,18 +111,19 @@ class LeRobotPolicy:
         """obs: LeRobot env observations ({"agent_pos", "environment_state", "pixels"}: [B, ...], or an
         array taken as "agent_pos"), with n_obs_steps > 1 the last n_obs_steps of each episode
         ([B, n_obs_steps, ...], as rollout gives them); noise [B, *noise_shape] -> actions [B, n_exec, A]."""
-        raw = obs if isinstance(obs, dict) else {"agent_pos": obs}
-        raw = {k: np.asarray(v) for k, v in raw.items()}
+        raw = per_array(np.asarray, obs if isinstance(obs, dict) else {"agent_pos": obs})
         noise = torch.as_tensor(np.asarray(noise, dtype=np.float32))
         n = len(noise)
         block = BLOCK if self.device == "cpu" else n  # on a GPU, the whole batch in one call
-        raw, noise = _padded(raw, noise, -n % block)
+        rows = -n % block  # padding: copies of the first row, a valid observation
+        raw = per_array(lambda v: np.concatenate([v, np.repeat(v[:1], rows, axis=0)]), raw)
+        noise = torch.cat([noise, noise[:1].expand(rows, *noise.shape[1:])])
         threads = torch.get_num_threads()
         if self.device == "cpu":
             torch.set_num_threads(1)
         try:
             with torch.no_grad():
-                chunks = [self._chunk(self._batch({k: v[i : i + block] for k, v in raw.items()}),
+                chunks = [self._chunk(self._batch(per_array(lambda v, i=i: v[i : i + block], raw)),
                                       noise[i : i + block].to(self.device))
                           for i in range(0, len(noise), block)]
         finally:
@@ -133,7 +135,7 @@ class LeRobotPolicy:
         builds it (preprocess_observation, "task", the saved preprocessor), steps stacked on axis 1."""
         if self.n_obs_steps == 1:
             return self._frame(raw)
-        frames = [self._frame({k: v[:, s] for k, v in raw.items()}) for s in range(self.n_obs_steps)]
+        frames = [self._frame(per_array(lambda v, s=s: v[:, s], raw)) for s in range(self.n_obs_steps)]
         return {key: torch.stack([f[key] for f in frames], dim=1) for key in frames[0]
                 if isinstance(frames[0][key], torch.Tensor)}
 
@@ -151,7 +153,8 @@ class LeRobotPolicy:
     def _check_features(self, tensors: dict[str, torch.Tensor]) -> None:
         """One-line UserError unless the observation has every input feature, in its shape."""
         given = {k: tuple(v.shape[1:]) for k, v in tensors.items()}
-        wanted = {k: tuple(f.shape) for k, f in self.cfg.input_features.items()}
+        wanted = {k: tuple(f.shape) for k, f in self.cfg.input_features.items()
+                  if "empty_camera" not in k}  # VLAs fill these themselves
         if any(given.get(k) != shape for k, shape in wanted.items()):
             raise UserError(f"policy {self.name!r}: the env's observations give {given} after LeRobot's "
                             f"preprocess_observation; the policy's input features are {wanted}")
@@ -177,9 +180,6 @@ def files_digest(path: Path) -> str:
     return digest.hexdigest()[:16]
 
 
-def _padded(raw: dict[str, np.ndarray], noise: torch.Tensor, rows: int):
-    """Observations and noise with `rows` more rows, copies of the first (a valid observation)."""
-    if not rows:
-        return raw, noise
-    raw = {k: np.concatenate([v, np.repeat(v[:1], rows, axis=0)]) for k, v in raw.items()}
-    return raw, torch.cat([noise, noise[:1].expand(rows, *noise.shape[1:])])
+def per_array(fn, obs: dict) -> dict:
+    """`fn` applied to every array of a dict of arrays, or of such dicts (LeRobot's `pixels` cameras)."""
+    return {k: per_array(fn, v) if isinstance(v, dict) else fn(v) for k, v in obs.items()}

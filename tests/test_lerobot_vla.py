@@ -1,0 +1,244 @@
+"""LeRobot's VLAs as policies (goldenticket.policies.lerobot.vla): SmolVLA, pi0 and pi0.5 built offline
+with random weights on a tiny backbone, against LeRobot's own eval loop. Marked `lerobot`: they run in
+LeRobot's venv (README, "LeRobot") and are skipped without it."""
+
+import importlib.util
+import json
+import sys
+from functools import partial
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from goldenticket.cli import main
+from goldenticket.errors import UserError
+from goldenticket.noise import Constant
+from goldenticket.policies import load_policy
+from goldenticket.rollout import Episode, rollout
+from goldenticket.tasks import get_task
+
+ROOT = Path(__file__).parents[1]
+sys.path.insert(0, str(ROOT))  # examples.*, here and in worker processes
+from examples.lerobot_reach import LeRobotReach  # noqa: E402
+
+pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.skipif(
+    importlib.util.find_spec("lerobot") is None, reason="LeRobot is not installed (its own venv: README)")]
+INSTRUCTION = "Reach a goal position"
+SIZE = 32  # camera frames, height and width
+
+
+class CameraReach(LeRobotReach):
+    """The reach env seen by `cameras` cameras (LeRobot's `pixels` dict), with LeRobot's instruction
+    attribute `task_description`."""
+
+    task_description = INSTRUCTION
+    cameras = 2
+
+    def __init__(self):
+        super().__init__()
+        frame = gym.spaces.Box(0, 255, (SIZE, SIZE, 3), np.uint8)
+        pixels = {f"image{i or ''}": frame for i in range(self.cameras)}
+        self.observation_space = gym.spaces.Dict({**LeRobotReach.observation_space.spaces,
+                                                  **({"pixels": gym.spaces.Dict(pixels)} if pixels else {})})
+
+    def seen(self, obs: dict) -> dict:
+        if not self.cameras:
+            return obs
+        frame = np.zeros((SIZE, SIZE, 3), np.uint8)
+        row, col = np.clip(((obs["agent_pos"][:2] + 0.5) * SIZE).astype(int), 0, SIZE - 4)
+        frame[row : row + 4, col : col + 4] = 255
+        return obs | {"pixels": {f"image{i or ''}": np.roll(frame, i, axis=0) for i in range(self.cameras)}}
+
+    def reset(self, seed=None, options=None):
+        obs, info = super().reset(seed=seed)
+        return self.seen(obs), info
+
+    def step(self, action):
+        obs, *rest = super().step(action)
+        return self.seen(obs), *rest
+
+
+class OneCamera(CameraReach):
+    cameras = 1
+
+
+class Unsaid(CameraReach):
+    task_description = None
+
+
+def two_cameras() -> gym.Env:
+    return gym.wrappers.TimeLimit(CameraReach(), 12)
+
+
+def one_camera() -> gym.Env:
+    return gym.wrappers.TimeLimit(OneCamera(), 12)
+
+
+def no_instruction() -> gym.Env:
+    return gym.wrappers.TimeLimit(Unsaid(), 12)
+
+
+@pytest.fixture(scope="module")
+def backbone(tmp_path_factory) -> Path:
+    from examples.smolvla_backbone import write_backbone
+
+    return write_backbone(tmp_path_factory.mktemp("backbone"), "tiny")
+
+
+def features(cameras: int):
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    inputs = {"observation.state": PolicyFeature(FeatureType.STATE, (4,)),
+              "observation.environment_state": PolicyFeature(FeatureType.ENV, (6,))}
+    inputs |= {f"observation.images.image{i or ''}": PolicyFeature(FeatureType.VISUAL, (3, SIZE, SIZE))
+               for i in range(cameras)}
+    return inputs, {"action": PolicyFeature(FeatureType.ACTION, (4,))}
+
+
+def save(policy, cfg, folder: Path) -> Path:
+    """The policy and its processors, written by LeRobot's save_pretrained, with dataset stats."""
+    import torch
+    from lerobot.policies.factory import make_pre_post_processors
+
+    unit = {"mean": torch.zeros(4), "std": torch.full((4,), 0.5), "min": -torch.ones(4), "max": torch.ones(4),
+            "q01": -torch.ones(4), "q99": torch.ones(4)}
+    stats = {"observation.state": unit, "action": unit}
+    policy.save_pretrained(folder)
+    for pipeline in make_pre_post_processors(cfg, dataset_stats=stats):
+        pipeline.save_pretrained(folder)
+    return folder
+
+
+def smolvla(folder: Path, backbone: Path, cameras: int = 2, **settings) -> Path:
+    """An untrained SmolVLA on the tiny offline backbone."""
+    import torch
+    from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
+    from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
+
+    inputs, outputs = features(cameras)
+    inputs = settings.pop("input_features", inputs)
+    settings = {"chunk_size": 10, "n_action_steps": 5, "num_steps": 3, "resize_imgs_with_padding": (64, 64), "num_vlm_layers": 2} | settings
+    cfg = SmolVLAConfig(input_features=inputs, output_features=outputs, vlm_model_name=str(backbone),
+                        load_vlm_weights=False, device="cpu", push_to_hub=False, **settings)
+    torch.manual_seed(0)
+    return save(SmolVLAPolicy(cfg), cfg, folder)
+
+
+def lerobot_loop(policy, ticket: np.ndarray, env_factory, chunked: bool = False) -> tuple:
+    """What lerobot-eval's `rollout` and `eval_policy` take after the env: 16 envs, the model answering
+    `select_action(batch, noise=ticket)` (or, `chunked`, for a model whose select_action takes no noise,
+    `predict_action_chunk(batch, noise=ticket)` with the queue select_action keeps), no env processing,
+    the policy's pre- and postprocessor."""
+    import torch
+    from lerobot.processor import PolicyProcessorPipeline
+
+    model, identity = policy.model, PolicyProcessorPipeline(steps=[])
+    noise = torch.from_numpy(ticket).expand(16, *ticket.shape)
+    if chunked:
+        queue = []
+
+        def select_action(batch):
+            if not queue:
+                queue.extend(model.predict_action_chunk(batch, noise=noise)[:, : model.config.n_action_steps]
+                             .transpose(0, 1))
+            return queue.pop(0)
+
+        model.select_action = select_action
+    else:
+        model.select_action = partial(type(model).select_action, model, noise=noise)
+    env = gym.vector.SyncVectorEnv([env_factory] * 16, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    return env, model, identity, identity, policy.preprocessor, policy.postprocessor
+
+
+def same_actions_as_lerobot(folder: Path, factory, chunked: bool = False) -> None:
+    """Every executed action of 16 episodes, bitwise, as LeRobot's eval loop gives them."""
+    from lerobot.scripts.lerobot_eval import rollout as lerobot_rollout
+
+    policy = load_policy(str(folder))
+    ticket = np.random.default_rng(1).standard_normal(policy.noise_shape).astype(np.float32)
+    seeds = list(range(1_000_000, 1_000_016))
+    episodes = [Episode(Constant(ticket), s) for s in seeds]
+    ours = rollout(policy, get_task(factory), episodes, record_actions=True)
+    theirs = lerobot_rollout(*lerobot_loop(policy, ticket, factory, chunked), seeds=seeds)["action"].numpy()
+    for episode, result in enumerate(ours):
+        np.testing.assert_array_equal(result.actions, theirs[episode, : result.length])
+
+
+@pytest.mark.parametrize(("factory", "settings"), [
+    (two_cameras, {}), (one_camera, {}), (two_cameras, {"chunk_size": 6, "n_action_steps": 3}),
+], ids=["two-cameras", "one-camera", "chunk-6"])
+def test_smolvla_acts_as_in_lerobots_own_loop(tmp_path, backbone, factory, settings):
+    folder = smolvla(tmp_path / "policy", backbone, cameras=factory().unwrapped.cameras, **settings)
+    assert load_policy(str(folder)).noise_shape == (settings.get("chunk_size", 10), 32)
+    same_actions_as_lerobot(folder, factory)
+
+
+def first_observation() -> dict:
+    obs = two_cameras().reset(seed=1_000_000)[0]
+    return {"agent_pos": obs["agent_pos"][None], "environment_state": obs["environment_state"][None],
+            "pixels": {k: v[None] for k, v in obs["pixels"].items()}}
+
+
+def test_a_smolvla_ticket_fixes_its_actions_whatever_torch_draws(tmp_path, backbone):
+    import torch
+
+    policy = load_policy(str(smolvla(tmp_path / "policy", backbone))).instructed(INSTRUCTION)
+    noise = np.random.default_rng(2).standard_normal((1, *policy.noise_shape)).astype(np.float32)
+    torch.manual_seed(1)
+    first = policy.act(first_observation(), noise)
+    torch.manual_seed(2)
+    np.testing.assert_array_equal(policy.act(first_observation(), noise), first)
+    assert first.shape == (1, 5, 4)
+
+
+def test_the_instruction_is_what_the_policy_reads(tmp_path, backbone):
+    policy = load_policy(str(smolvla(tmp_path / "policy", backbone)))
+    noise = np.zeros((1, *policy.noise_shape), np.float32)
+    told = [policy.instructed(text).act(first_observation(), noise) for text in (INSTRUCTION, "Push the puck")]
+    assert not np.array_equal(*told)
+    assert get_task(two_cameras).instruction == INSTRUCTION and get_task(no_instruction).instruction is None
+
+
+def test_a_language_policy_on_a_task_without_an_instruction_is_refused(tmp_path, backbone):
+    folder = smolvla(tmp_path / "policy", backbone)
+    with pytest.raises(UserError, match="reads a language instruction, and task .* gives none"):
+        rollout(load_policy(str(folder)), get_task(no_instruction), [Episode(Constant(np.zeros((10, 32))), 1)])
+
+
+def test_cameras_that_do_not_match_the_checkpoint_are_refused(tmp_path, backbone):
+    folder = smolvla(tmp_path / "policy", backbone, cameras=2)
+    with pytest.raises(UserError, match="input features are .*observation.images.image1"):
+        rollout(load_policy(str(folder)), get_task(one_camera), [Episode(Constant(np.zeros((10, 32))), 1)])
+
+
+def test_a_checkpoint_whose_backbone_is_not_on_disk_names_what_to_download(tmp_path, backbone, capsys):
+    folder = smolvla(tmp_path / "policy", backbone)
+    config = json.loads((folder / "config.json").read_text())
+    (folder / "config.json").write_text(json.dumps(config | {"vlm_model_name": "HuggingFaceTB/SmolVLM2-500M"}))
+    assert main(["evaluate", "--policy", str(folder), "--task", "tests.test_lerobot_vla:two_cameras",
+                 "--seeds", "1000000:1000002"]) == 2
+    line = capsys.readouterr().err.strip()
+    assert "needs the backbone 'HuggingFaceTB/SmolVLM2-500M' on disk" in line and "hf download" in line
+    assert len(line.splitlines()) == 1
+
+
+def test_a_smolvla_is_searched_and_judged_through_the_cli_on_a_camera_task(tmp_path, backbone):
+    """A built-in camera task gives its frame, the hand's state and its instruction; 1 and 2 workers agree."""
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    inputs = {"observation.state": PolicyFeature(FeatureType.STATE, (4,)),
+              "observation.image": PolicyFeature(FeatureType.VISUAL, (3, 64, 64))}
+    folder = smolvla(tmp_path / "policy", backbone, input_features=inputs)
+    runs = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"run-{workers}"
+        assert main(["search", "--policy", str(folder), "--task", "metaworld-pixels/reach-v3", "--max-steps", "20",
+                     "--method", "rs", "--budget", "4", "--search-seeds", "2", "--validation-seeds", "0",
+                     "--heldout", "4", "--top-k", "1", "--workers", workers, "--out", str(out)]) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        runs.append(json.loads(json.dumps(summary).replace(str(out), "OUT")))
+    assert runs[0]["base"]["n"] == 4
+    for key in ("base", "zero", "tickets", "validation_scores"):
+        assert runs[0].get(key) == runs[1].get(key)
