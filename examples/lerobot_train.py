@@ -74,7 +74,7 @@ def train(dataset: Path, out: Path) -> Path:
         command = ["lerobot-train", "--dataset.repo_id=local/metaworld-reach", f"--dataset.root={dataset}",
                    "--policy.type=diffusion", *(f"--policy.{k}={v}" for k, v in POLICY.items()),
                    f"--output_dir={out}", f"--steps={STEPS}", "--batch_size=64", "--num_workers=0",
-                   f"--save_freq={SAVE_EVERY}", "--log_freq=500", "--eval_freq=0", "--seed=0",
+                   f"--save_freq={SAVE_EVERY}", "--log_freq=500", "--seed=0",
                    "--wandb.enable=false"]
     print(" ".join(command))
     subprocess.run([str(Path(sys.executable).with_name(command[0])), *command[1:]], check=True,

@@ -6,7 +6,8 @@ needs that folder on disk. `write_backbone(folder, size)` writes one: a SmolVLM 
 given size, a word-level tokenizer built with the `tokenizers` library (with SmolVLM's special
 image tokens) and a SmolVLM processor beside it. Random weights come from SmolVLA itself.
 
-    SIZES["tiny"]     a few thousand parameters a layer: tests and the shipped example
+    SIZES["tiny"]     a few thousand parameters a layer: tests
+    SIZES["small"]    the shipped example (examples/smolvla_train.py)
     SIZES["smolvla"]  the sizes of SmolVLA's own backbone, SmolVLM2-500M (benchmarks)
 
 Run in LeRobot's venv: `python examples/smolvla_backbone.py DIR [tiny|smolvla]`.
@@ -30,6 +31,11 @@ SIZES = {
              "vision": {"hidden_size": 32, "intermediate_size": 64, "num_hidden_layers": 1,
                         "num_attention_heads": 2, "patch_size": 16},
              "image_size": 64},
+    "small": {"text": {"hidden_size": 128, "intermediate_size": 256, "num_hidden_layers": 4,
+                       "num_attention_heads": 4, "num_key_value_heads": 2, "head_dim": 32},
+              "vision": {"hidden_size": 64, "intermediate_size": 128, "num_hidden_layers": 2,
+                         "num_attention_heads": 2, "patch_size": 8},
+              "image_size": 64},
     "smolvla": {"text": {"hidden_size": 960, "intermediate_size": 2560, "num_hidden_layers": 32,
                          "num_attention_heads": 15, "num_key_value_heads": 5, "head_dim": 64},
                 "vision": {"hidden_size": 768, "intermediate_size": 3072, "num_hidden_layers": 12,

@@ -242,3 +242,32 @@ def test_a_smolvla_is_searched_and_judged_through_the_cli_on_a_camera_task(tmp_p
     assert runs[0]["base"]["n"] == 4
     for key in ("base", "zero", "tickets", "validation_scores"):
         assert runs[0].get(key) == runs[1].get(key)
+
+
+def pi(folder: Path, backbone: Path, kind: str) -> Path:
+    """An untrained pi0 or pi0.5 at the smallest sizes LeRobot builds (Gemma 300M for both the VLM and
+    the action expert: 1.8B parameters), one 32 px camera seen at 28 px, whose saved preprocessor names a
+    local tokenizer in place of PaliGemma's, as an offline user would."""
+    import torch
+    from lerobot.policies.factory import get_policy_class, make_policy_config
+
+    inputs, outputs = features(1)
+    cfg = make_policy_config(kind, input_features=inputs, output_features=outputs, device="cpu",
+                             push_to_hub=False, paligemma_variant="gemma_300m", action_expert_variant="gemma_300m",
+                             image_resolution=(28, 28), chunk_size=10, n_action_steps=5, num_inference_steps=3)
+    torch.manual_seed(0)
+    save(get_policy_class(kind)(cfg), cfg, folder)
+    preprocessor = folder / "policy_preprocessor.json"
+    steps = json.loads(preprocessor.read_text())
+    for step in steps["steps"]:
+        if step["registry_name"] == "tokenizer_processor":
+            step["config"]["tokenizer_name"] = str(backbone)
+    preprocessor.write_text(json.dumps(steps))
+    return folder
+
+
+@pytest.mark.parametrize("kind", ["pi0", "pi05"])
+def test_pi0_and_pi05_act_as_in_lerobots_own_loop(tmp_path, backbone, kind):
+    """pi0's and pi0.5's select_action takes no noise: LeRobot's loop here calls predict_action_chunk(batch,
+    noise=ticket) and keeps select_action's queue, as the adapter does."""
+    same_actions_as_lerobot(pi(tmp_path / "policy", backbone, kind), one_camera, chunked=True)

@@ -148,9 +148,25 @@ class EngineOptions:
                                   "actions ends as a failure of its arm; stop (the policy or its adapter "
                                   "broken) only when more than this fraction of the held-out episodes of "
                                   "both the base and the zero ticket end so")
+    device: str = option("cpu", "where a LeRobot checkpoint's model runs: cpu, or cuda / cuda:N (there the "
+                         "numbers hold for the same GPU model, driver and versions; run --workers 1)")
 
     def check(self) -> None:  # workers: the engine knows this machine's limit (rollout.Engine)
         check_max_nonfinite(self.max_nonfinite)
+        check_device(self.device)
+
+
+def check_device(device: str) -> None:
+    """`cpu`, `cuda` or `cuda:N`; a GPU one only where torch sees a GPU."""
+    kind, _, index = device.partition(":")
+    if not (device == "cpu" or (kind == "cuda" and (not index or index.isdigit()))):
+        raise OptionError(f"device must be cpu, cuda or cuda:N, got {device!r}", "device")
+    if kind == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise OptionError(f"device {device}: torch sees no CUDA GPU here (torch.cuda.is_available() is "
+                              "False); run on the CPU (device cpu, the default)", "device")
 
 
 def check_max_nonfinite(fraction: float) -> None:

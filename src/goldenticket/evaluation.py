@@ -47,11 +47,11 @@ class Evaluator:
     def open(cls, policy, tasks, options: EngineOptions | None = None, store: RunStore | None = None,
              objective: str = "success", loaded=None) -> Iterator[Evaluator]:
         """An evaluator on its own engine for `policy` on `tasks` (one task or several), where
-        `options` say (workers, backend, address, max_nonfinite); `loaded`: the policy already
+        `options` say (workers, backend, address, max_nonfinite, device); `loaded`: the policy already
         built, used in-process. The engine's workers stop when the block ends."""
         options = options or EngineOptions()
         with Engine(policy, tasks, objective=objective, workers=options.workers, backend=options.backend,
-                    address=options.address, loaded=loaded) as engine:
+                    address=options.address, loaded=loaded, device=options.device) as engine:
             yield cls(engine, store, max_nonfinite=options.max_nonfinite)
 
     def progress(self, total: int | None, desc: str) -> tqdm:

@@ -33,7 +33,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     (transfer.json, transfer.csv), its heatmap (transfer.png) and the greedy cover; every matrix
     episode is kept in `out/run.sqlite`, so a rerun resumes."""
     cfg.check()
-    policy = load_policy(cfg.policy)
+    policy = load_policy(cfg.policy, cfg.device)
     tasks = checked_tasks(policy, cfg)
     heldout = seeds_in("heldout", cfg.heldout)
     plan = Plan.of(cfg, policy, tasks)

@@ -139,10 +139,10 @@ def checked_actions(policy: NoisePolicy, actions: np.ndarray, batch: int) -> np.
 _worker: dict = {}
 
 
-def _init_worker(policy: str | NoisePolicy, tasks: dict[str, Task], objective: str) -> None:
+def _init_worker(policy: str | NoisePolicy, tasks: dict[str, Task], objective: str, device: str) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to handle
     torch.set_num_threads(1)
-    _worker.update(policy=load_policy(policy), tasks=tasks, objective=objective,
+    _worker.update(policy=load_policy(policy, device), tasks=tasks, objective=objective,
                    envs={name: [] for name in tasks})
 
 
@@ -175,9 +175,9 @@ class Engine:
 
     def __init__(self, policy: str | NoisePolicy, task: Task | Sequence[Task], *, objective: str = "success",
                  workers: int = 1, shard_size: int = 16, backend: str = "local", address: str | None = None,
-                 loaded: NoisePolicy | None = None):
-        """`policy` as workers rebuild it (a name, or the object pickled); `loaded`: the policy
-        already built from it, used in-process instead of building it again. A shard's episodes run
+                 loaded: NoisePolicy | None = None, device: str = "cpu"):
+        """`policy` as workers rebuild it (a name, or the object pickled), on `device`; `loaded`: the
+        policy already built from it, used in-process instead of building it again. A shard's episodes run
         side by side, one env each: 16 fills one block of the bundled policies' batched call."""
         most = 4 * (os.cpu_count() or 1)
         if backend not in BACKENDS:
@@ -188,7 +188,7 @@ class Engine:
             raise OptionError(f"workers must be between 1 and {most} (4 per CPU here), got {workers}",
                               "workers")
         local = backend == "local" and workers == 1
-        self.policy = (loaded or load_policy(policy)) if local else None
+        self.policy = (loaded or load_policy(policy, device)) if local else None
         self.label, self.in_workers = policy_label(loaded or policy), not local  # for messages
         self.tasks = {t.name: t for t in ([task] if hasattr(task, "make_env") else task)}
         self.task = next(iter(self.tasks.values()))
@@ -197,7 +197,8 @@ class Engine:
         self._pool = None
         if not local:  # each worker rebuilds a named policy, or unpickles a policy object
             picklable((policy, self.tasks), f"policy {policy_label(policy)!r} or task {self.task.name!r}")
-            self._pool = BACKENDS[backend](workers, _init_worker, (policy, self.tasks, objective), address)
+            initargs = (policy, self.tasks, objective, device)
+            self._pool = BACKENDS[backend](workers, _init_worker, initargs, address)
 
     def evaluate(self, episodes: Sequence[Episode],
                  on_shard: Callable[[int, list[EpisodeResult]], None] | None = None,

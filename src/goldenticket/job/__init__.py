@@ -26,7 +26,7 @@ def find_golden_tickets(cfg: SearchConfig, out: str | Path) -> Summary | Multita
     per task and on average (`Plan.where` spreads the search's episodes over them)."""
     cfg.check()
     out_name, out = out, Path(out)  # the name as given: Path("") would be the current folder
-    policy = load_policy(cfg.policy)
+    policy = load_policy(cfg.policy, cfg.device)
     plan = Plan.of(cfg, policy, checked_tasks(policy, cfg))
     optimizer, others = stages.optimizer(plan), other_candidates(plan)
     with Evaluator.open(cfg.policy, plan.tasks, cfg, objective=cfg.objective, loaded=policy) as evaluator, \

@@ -33,7 +33,7 @@ def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict
     cfg.check()
     seeds = list(cfg.seeds)
     require_heldout(seeds)
-    policy = load_policy(cfg.policy)
+    policy = load_policy(cfg.policy, cfg.device)
     loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape)
               for path in map(find_ticket, cfg.tickets)}
     given = {"task": cfg.task, "max_steps": cfg.max_steps, "success": cfg.success}

@@ -57,18 +57,23 @@ def split_steps(name: str) -> tuple[str, int | None]:
     return base, int(steps)
 
 
-def load_policy(name: str | NoisePolicy) -> NoisePolicy:
+def load_policy(name: str | NoisePolicy, device: str = "cpu") -> NoisePolicy:
     """A bundled policy by name, a policy directory (config.json + model.safetensors) or a LeRobot
     checkpoint folder, where an `@N` suffix sets the number of denoising steps, any NoisePolicy
-    built by an import string `package.module:factory`, or a NoisePolicy object itself (checked)."""
+    built by an import string `package.module:factory`, or a NoisePolicy object itself (checked).
+    `device` places a LeRobot checkpoint's model; every other policy runs where it runs (the
+    bundled ones on the CPU, where their numbers are the same on every machine)."""
+    base, steps = split_steps(name) if isinstance(name, str) else (None, None)
+    if isinstance(name, str) and not is_import_string(name) and lerobot.is_checkpoint(Path(base)):
+        return lerobot.load(Path(base), steps, name, device)
+    if device != "cpu":
+        raise UserError(f"device {device}: only LeRobot checkpoints run on a chosen device; policy "
+                        f"{policy_label(name)!r} runs where it runs (bundled policies: on the CPU)")
     if not isinstance(name, str):
         return _checked(name, policy_label(name))
     if is_import_string(name):
         return _checked(build(name, "policy"), name)
-    base, steps = split_steps(name)
     path = Path(base)
-    if lerobot.is_checkpoint(path):
-        return lerobot.load(path, steps, name)
     if not (path / "config.json").is_file():
         path = _bundled(base)
     policy = MLPPolicy.load(path)

@@ -82,14 +82,14 @@ class LeRobotPolicy:
         config_class, policy_class, processors = lerobot_modules()
         cfg = config_class.from_pretrained(self.path)
         cfg.device = device
+        overrides = {"device_processor": {"device": device}} | self._backbone_inside(cfg)
         self._steps_field = "num_steps" if hasattr(cfg, "num_steps") else "num_inference_steps"
         if steps:
             setattr(cfg, self._steps_field, steps)
         with contextlib.redirect_stdout(io.StringIO()), _backbone_named(cfg, self.path):
             self.model = policy_class(cfg.type).from_pretrained(self.path, config=cfg).eval()
-            on_device = {"device_processor": {"device": device}}
             self.preprocessor, self.postprocessor = processors(
-                cfg, pretrained_path=str(self.path), preprocessor_overrides=on_device)
+                cfg, pretrained_path=str(self.path), preprocessor_overrides=overrides)
         self.cfg, self.name = cfg, name or str(path)
         self.n_exec, self.n_obs_steps = cfg.n_action_steps, cfg.n_obs_steps
         self.action_dim = cfg.action_feature.shape[0]  # a VLA pads its noise past it
@@ -99,6 +99,15 @@ class LeRobotPolicy:
     @property
     def denoising_steps(self) -> int:
         return getattr(self.cfg, self._steps_field)
+
+    def _backbone_inside(self, cfg) -> dict:
+        """A VLA whose `vlm_model_name` is a folder inside the checkpoint (a relative name) reads its
+        backbone, and its tokenizer, from there; the processor overrides that say so."""
+        name = getattr(cfg, "vlm_model_name", None)
+        if not (name and (self.path / name).is_dir()):
+            return {}
+        cfg.vlm_model_name = str(self.path / name)
+        return {"tokenizer_processor": {"tokenizer_name": cfg.vlm_model_name}}
 
     def __reduce__(self):  # worker processes load the folder again
         return type(self), (self.path, self.steps, self.name, self.device), {"instruction": self.instruction}
