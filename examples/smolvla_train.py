@@ -53,7 +53,8 @@ def make_dataset(root: Path) -> None:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     features = {
-        "observation.image": {"dtype": "image", "shape": (64, 64, 3), "names": ["height", "width", "channels"]},
+        "observation.image": {"dtype": "image", "shape": (64, 64, 3),
+                              "names": ["height", "width", "channels"]},
         "observation.state": {"dtype": "float32", "shape": (4,), "names": None},
         "action": {"dtype": "float32", "shape": (4,), "names": None},
     }
@@ -106,7 +107,8 @@ def ship(pretrained: Path, backbone: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/smolvla-train"),
-                        help="folder of the backbone, the dataset and lerobot-train's output (default: %(default)s)")
+                        help="folder of the backbone, the dataset and lerobot-train's output "
+                        "(default: %(default)s)")
     work = parser.parse_args().work.resolve()
     backbone = work / BACKBONE
     if not (backbone / "config.json").is_file():

@@ -132,3 +132,29 @@ def test_an_empty_out_is_refused_not_the_current_folder(command, tmp_path, monke
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "argument --out: empty; name a folder" in err
     assert len(err.strip().splitlines()) == 1 and not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(("device", "says"), [
+    ("gpu", "--device must be cpu, cuda or cuda:N, got 'gpu'"),
+    ("cuda:x", "--device must be cpu, cuda or cuda:N, got 'cuda:x'"),
+])
+def test_a_device_that_is_no_device_is_one_line(capsys, device, says):
+    assert main(["evaluate", "--policy", POLICY, "--seeds", "1000000:1000002", "--device", device]) == 2
+    assert capsys.readouterr().err.strip() == f"goldenticket: error: {says}"
+
+
+def test_a_gpu_device_without_a_gpu_is_one_line(capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    assert main(["search", "--policy", POLICY, "--device", "cuda", "--out", "never-made"]) == 2
+    assert "torch sees no CUDA GPU here" in capsys.readouterr().err
+
+
+def test_only_lerobot_checkpoints_take_a_device(monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    with pytest.raises(UserError, match="only LeRobot checkpoints run on a chosen device"):
+        load_policy(POLICY, "cuda")

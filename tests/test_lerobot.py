@@ -1,6 +1,6 @@
 """LeRobot checkpoints as policies (goldenticket.policies.lerobot).
 
-The refusals run everywhere; the tests marked `lerobot` need LeRobot 0.4.4, installed in its own
+The refusals run everywhere; the tests marked `lerobot` need LeRobot 0.6.1, installed in its own
 venv (README, "LeRobot"; .ci/run runs them there) and are skipped without it.
 """
 

@@ -60,6 +60,8 @@ class Task(Protocol):
 
     name: str
     max_steps: int
+    # Optional: instruction: str | None, what a language policy (a VLA) is told to do, passed as
+    # LeRobot passes it ("task"); Meta-World tasks have LeRobot's description of their env.
 
     def make_env(self) -> Env: ...
 

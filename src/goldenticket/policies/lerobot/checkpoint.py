@@ -175,17 +175,32 @@ def _backbone_named(cfg, path: Path):
     try:
         yield
     except OSError as error:
-        backbone = getattr(cfg, "vlm_model_name", None) or "its backbone"
+        backbone = backbone_name(cfg, path)
         raise UserError(f"{path}: the {cfg.type} checkpoint needs the backbone {backbone!r} on disk, and it "
                         f"is not there ({str(error).splitlines()[0]}); download it where a network is "
                         f"(`hf download {backbone}`, into the Hugging Face cache, ~/.cache/huggingface) or "
                         "set \"vlm_model_name\" in its config.json to a local folder") from None
 
 
+def backbone_name(cfg, path: Path) -> str:
+    """What a VLA reads besides its folder: SmolVLA's `vlm_model_name`, else the tokenizer its saved
+    preprocessor names (pi0's and pi0.5's, PaliGemma's)."""
+    if getattr(cfg, "vlm_model_name", None):
+        return cfg.vlm_model_name
+    steps = json.loads((path / "policy_preprocessor.json").read_text()).get("steps", [])
+    named = [step.get("config", {}).get("tokenizer_name") for step in steps
+             if step.get("registry_name") == "tokenizer_processor"]
+    return next(filter(None, named), "its backbone")
+
+
 def files_digest(path: Path) -> str:
+    """sha256 of the config, weights and processor files, and of every file in a folder inside (a
+    backbone the checkpoint carries)."""
     digest = hashlib.sha256()
-    for file in sorted([*path.glob("policy_*processor*"), path / "config.json", path / "model.safetensors"]):
-        digest.update(file.name.encode() + file.read_bytes())
+    top = sorted([*path.glob("policy_*processor*"), path / "config.json", path / "model.safetensors"])
+    inside = sorted(p for p in path.rglob("*") if p.is_file() and p.parent != path)
+    for file in top + inside:
+        digest.update(str(file.relative_to(path)).encode() + file.read_bytes())
     return digest.hexdigest()[:16]
 
 
