@@ -13,7 +13,8 @@ In the LeRobot venv (README, "LeRobot"):
 3. They are written as one LeRobotDataset (`LeRobotDataset.create`, `add_frame`, `save_episode`,
    the instruction as each frame's "task") in a local folder; nothing goes to a hub.
 4. `lerobot-train` trains the SmolVLA on the CPU without wandb; rerunning resumes from its last
-   checkpoint. The backbone folder goes inside the policy folder, where goldenticket finds it.
+   checkpoint. The 2000-step checkpoint ships, with the backbone folder inside the policy folder,
+   where goldenticket finds it.
 """
 
 import argparse
@@ -37,6 +38,9 @@ TASKS = ("metaworld-pixels/drawer-open-v3", "metaworld-pixels/button-press-topdo
          "metaworld-pixels/door-open-v3")
 DEMOS, STYLE = 12, DemoStyle(grasp_offset=0.04, action_noise=0.3)
 STEPS, SAVE_EVERY = 3_000, 500
+# The checkpoint shipped: after 3000 steps the base success on button-press-topdown was 87.5% (32
+# held-out seeds), above the 20-85% of an imperfect policy; after 2000 steps it was 72-78% on each task.
+SHIPPED_STEP = 2_000
 BACKBONE = "backbone"  # the folder inside the policy folder that holds the SmolVLM backbone
 POLICY = {  # SmolVLAConfig fields that differ from LeRobot's defaults
     "load_vlm_weights": "false", "freeze_vision_encoder": "false", "train_expert_only": "false",
@@ -75,7 +79,8 @@ def make_dataset(root: Path) -> None:
 
 
 def train(dataset: Path, backbone: Path, out: Path) -> Path:
-    """lerobot-train on `dataset` into `out` (resumed from its last checkpoint); its pretrained folder."""
+    """lerobot-train on `dataset` into `out` (resumed from its last checkpoint); the shipped step's
+    pretrained folder."""
     last = out / "checkpoints" / "last"
     if (last / "pretrained_model").is_dir():
         command = ["lerobot-train", f"--config_path={last / 'pretrained_model' / 'train_config.json'}",
@@ -90,7 +95,7 @@ def train(dataset: Path, backbone: Path, out: Path) -> Path:
     print(" ".join(command))
     subprocess.run([str(Path(sys.executable).with_name(command[0])), *command[1:]], check=True,
                    env=os.environ | ENVIRONMENT)
-    return last / "pretrained_model"
+    return out / "checkpoints" / f"{SHIPPED_STEP:06d}" / "pretrained_model"
 
 
 def ship(pretrained: Path, backbone: Path) -> None:

@@ -285,7 +285,7 @@ def paligemma_cached(tmp_path, backbone, monkeypatch):
 
 def pi(folder: Path, kind: str) -> Path:
     """An untrained pi0 or pi0.5 at the smallest sizes LeRobot builds (Gemma 300M for both the VLM and
-    the action expert: 1.8B parameters), one 32 px camera seen at 28 px."""
+    the action expert: 1.8B parameters, 7 GB), one 32 px camera seen at 28 px; only the folder stays."""
     import torch
     from lerobot.policies.factory import get_policy_class, make_policy_config
 
