@@ -4,7 +4,7 @@ held-out seeds, and goldenticket's engine runs the same episodes; both success r
 with the seeds where the two disagree. In the LeRobot venv, from the repository root:
 
     python examples/lerobot_eval.py [--seeds 1005000:1005300]              # lerobot_reach_policy
-    python examples/lerobot_eval.py --example smolvla --task metaworld-pixels/drawer-open-v3
+    python examples/lerobot_eval.py --example smolvla [--seeds 1005000:1005300]  # smolvla_metaworld_policy
 """
 
 import argparse
@@ -27,8 +27,7 @@ EXAMPLES = {  # the policy folder, and its ticket for each task
     "reach": (HERE / "lerobot_reach_policy",
               {"examples.lerobot_reach:make_env": HERE / "lerobot_reach_ticket.safetensors"}),
     "smolvla": (HERE / "smolvla_metaworld_policy",
-                {f"metaworld-pixels/{env}": HERE / "smolvla_metaworld_tickets" / f"{env}.safetensors"
-                 for env in ("drawer-open-v3", "button-press-topdown-v3", "door-open-v3")}),
+                {"metaworld-pixels/button-press-topdown-v3": HERE / "smolvla_metaworld_ticket.safetensors"}),
 }
 ENVS = 16  # lerobot-eval's --eval.batch_size: one block of the adapter's batched call
 

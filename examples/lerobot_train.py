@@ -64,22 +64,26 @@ def make_dataset(root: Path) -> None:
     print(f"{DEMOS} demonstrations ({demos.attempts} attempts), {dataset.num_frames} frames -> {root}")
 
 
-def train(dataset: Path, out: Path) -> Path:
-    """lerobot-train on `dataset` into `out` (resumed from its last checkpoint); its pretrained folder."""
+def lerobot_train(out: Path, flags: list[str]) -> Path:
+    """`lerobot-train` with `flags` into `out`, or resumed from its last checkpoint there, on one
+    torch thread without a hub; the last checkpoint's pretrained folder."""
     last = out / "checkpoints" / "last"
     if (last / "pretrained_model").is_dir():
-        command = ["lerobot-train", f"--config_path={last / 'pretrained_model' / 'train_config.json'}",
-                   "--resume=true"]
+        flags = [f"--config_path={last / 'pretrained_model' / 'train_config.json'}", "--resume=true"]
     else:
-        command = ["lerobot-train", "--dataset.repo_id=local/metaworld-reach", f"--dataset.root={dataset}",
-                   "--policy.type=diffusion", *(f"--policy.{k}={v}" for k, v in POLICY.items()),
-                   f"--output_dir={out}", f"--steps={STEPS}", "--batch_size=64", "--num_workers=0",
-                   f"--save_freq={SAVE_EVERY}", "--log_freq=500", "--seed=0",
-                   "--wandb.enable=false"]
-    print(" ".join(command))
-    subprocess.run([str(Path(sys.executable).with_name(command[0])), *command[1:]], check=True,
+        flags = [*flags, f"--output_dir={out}", "--num_workers=0", "--seed=0", "--wandb.enable=false"]
+    print(" ".join(["lerobot-train", *flags]))
+    subprocess.run([str(Path(sys.executable).with_name("lerobot-train")), *flags], check=True,
                    env=os.environ | ENVIRONMENT)
     return last / "pretrained_model"
+
+
+def train(dataset: Path, out: Path) -> Path:
+    """lerobot-train on `dataset` into `out` (resumed from its last checkpoint); its pretrained folder."""
+    return lerobot_train(out, ["--dataset.repo_id=local/metaworld-reach", f"--dataset.root={dataset}",
+                               "--policy.type=diffusion", *(f"--policy.{k}={v}" for k, v in POLICY.items()),
+                               f"--steps={STEPS}", "--batch_size=64", f"--save_freq={SAVE_EVERY}",
+                               "--log_freq=500"])
 
 
 def main() -> None:

@@ -19,9 +19,7 @@ In the LeRobot venv (README, "LeRobot"):
 
 import argparse
 import json
-import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
@@ -31,6 +29,7 @@ from goldenticket.tasks import get_task
 from goldenticket.train import DemoStyle, collect_demos
 
 sys.path.insert(0, str(Path(__file__).parent))
+from lerobot_train import lerobot_train
 from smolvla_backbone import write_backbone
 
 POLICY_DIR = Path(__file__).with_name("smolvla_metaworld_policy")
@@ -48,8 +47,6 @@ POLICY = {  # SmolVLAConfig fields that differ from LeRobot's defaults
     "optimizer_lr": "5e-4", "scheduler_warmup_steps": 200, "scheduler_decay_steps": STEPS,
     "device": "cpu", "push_to_hub": "false",
 }
-# One torch thread (two ran 6x slower on this 2-core machine shared with other jobs); no hub.
-ENVIRONMENT = {"OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1"}
 
 
 def make_dataset(root: Path) -> None:
@@ -81,20 +78,10 @@ def make_dataset(root: Path) -> None:
 def train(dataset: Path, backbone: Path, out: Path) -> Path:
     """lerobot-train on `dataset` into `out` (resumed from its last checkpoint); the shipped step's
     pretrained folder."""
-    last = out / "checkpoints" / "last"
-    if (last / "pretrained_model").is_dir():
-        command = ["lerobot-train", f"--config_path={last / 'pretrained_model' / 'train_config.json'}",
-                   "--resume=true"]
-    else:
-        command = ["lerobot-train", "--dataset.repo_id=local/metaworld-smolvla", f"--dataset.root={dataset}",
-                   "--policy.type=smolvla", f"--policy.vlm_model_name={backbone}",
-                   *(f"--policy.{k}={v}" for k, v in POLICY.items()),
-                   f"--output_dir={out}", f"--steps={STEPS}", "--batch_size=32", "--num_workers=0",
-                   f"--save_freq={SAVE_EVERY}", "--log_freq=100", "--seed=0",
-                   "--wandb.enable=false"]
-    print(" ".join(command))
-    subprocess.run([str(Path(sys.executable).with_name(command[0])), *command[1:]], check=True,
-                   env=os.environ | ENVIRONMENT)
+    lerobot_train(out, ["--dataset.repo_id=local/metaworld-smolvla", f"--dataset.root={dataset}",
+                        "--policy.type=smolvla", f"--policy.vlm_model_name={backbone}",
+                        *(f"--policy.{k}={v}" for k, v in POLICY.items()), f"--steps={STEPS}",
+                        "--batch_size=32", f"--save_freq={SAVE_EVERY}", "--log_freq=100"])
     return out / "checkpoints" / f"{SHIPPED_STEP:06d}" / "pretrained_model"
 
 

@@ -285,13 +285,14 @@ def paligemma_cached(tmp_path, backbone, monkeypatch):
 
 def pi(folder: Path, kind: str) -> Path:
     """An untrained pi0 or pi0.5 at the smallest sizes LeRobot builds (Gemma 300M for both the VLM and
-    the action expert: 1.8B parameters, 7 GB), one 32 px camera seen at 28 px; only the folder stays."""
+    the action expert: 1.8B parameters), in bfloat16 (3.6 GB; in float32, loading one took more than
+    this machine's 24 GiB), one 32 px camera seen at 28 px; only the folder stays."""
     import torch
     from lerobot.policies.factory import get_policy_class, make_policy_config
 
     inputs, outputs = features(1)
     cfg = make_policy_config(kind, input_features=inputs, output_features=outputs, device="cpu",
-                             push_to_hub=False, paligemma_variant="gemma_300m",
+                             push_to_hub=False, dtype="bfloat16", paligemma_variant="gemma_300m",
                              action_expert_variant="gemma_300m", image_resolution=(28, 28), chunk_size=10,
                              n_action_steps=5, num_inference_steps=3)
     torch.manual_seed(0)
@@ -303,3 +304,19 @@ def test_pi0_and_pi05_act_as_in_lerobots_own_loop(tmp_path, paligemma_cached, ki
     """pi0's and pi0.5's select_action takes no noise: LeRobot's loop here calls predict_action_chunk(batch,
     noise=ticket) and keeps select_action's queue, as the adapter does."""
     same_actions_as_lerobot(pi(tmp_path / "policy", kind), one_camera, chunked=True)
+
+
+def test_the_shipped_smolvla_ticket_gives_lerobots_per_episode_successes():
+    """The shipped SmolVLA and its button-press ticket in LeRobot's own eval loop (select_action with
+    the ticket, the instruction from the env) and in goldenticket's engine: the same episodes succeed."""
+    import torch
+
+    from examples.lerobot_eval import EXAMPLES, goldenticket_successes, lerobot_successes
+    from goldenticket.tickets import Ticket
+
+    folder, tickets = EXAMPLES["smolvla"]
+    task = "metaworld-pixels/button-press-topdown-v3"
+    policy, seeds = load_policy(str(folder)), range(1_005_000, 1_005_016)
+    ticket = torch.from_numpy(Ticket.load(tickets[task], expected_shape=policy.noise_shape).noise)
+    ours = goldenticket_successes(policy, ticket, task, seeds)
+    assert ours == lerobot_successes(policy, ticket, task, seeds) and sum(ours) > 0
