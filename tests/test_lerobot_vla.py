@@ -1,6 +1,6 @@
-"""LeRobot's VLAs as policies (goldenticket.policies.lerobot.vla): SmolVLA, pi0 and pi0.5 built offline
-with random weights on a tiny backbone, against LeRobot's own eval loop. Marked `lerobot`: they run in
-LeRobot's venv (README, "LeRobot") and are skipped without it."""
+"""LeRobot's VLAs as policies (goldenticket.policies.lerobot.vla): SmolVLAs built offline with random
+weights on a tiny backbone, and the shipped one, against LeRobot's own eval loop. Marked `lerobot`:
+they run in LeRobot's venv (README, "LeRobot") and are skipped without it."""
 
 import importlib.util
 import json
@@ -127,33 +127,20 @@ def smolvla(folder: Path, backbone: Path, cameras: int = 2, **settings) -> Path:
     return save(SmolVLAPolicy(cfg), cfg, folder)
 
 
-def lerobot_loop(policy, ticket: np.ndarray, env_factory, chunked: bool = False) -> tuple:
+def lerobot_loop(policy, ticket: np.ndarray, env_factory) -> tuple:
     """What lerobot-eval's `rollout` and `eval_policy` take after the env: 16 envs, the model answering
-    `select_action(batch, noise=ticket)` (or, `chunked`, for a model whose select_action takes no noise,
-    `predict_action_chunk(batch, noise=ticket)` with the queue select_action keeps), no env processing,
-    the policy's pre- and postprocessor."""
+    `select_action(batch, noise=ticket)`, no env processing, the policy's pre- and postprocessor."""
     import torch
     from lerobot.processor import PolicyProcessorPipeline
 
     model, identity = policy.model, PolicyProcessorPipeline(steps=[])
     noise = torch.from_numpy(ticket).expand(16, *ticket.shape)
-    if chunked:
-        queue = []
-
-        def select_action(batch):
-            if not queue:
-                queue.extend(model.predict_action_chunk(batch, noise=noise)[:, : model.config.n_action_steps]
-                             .transpose(0, 1))
-            return queue.pop(0)
-
-        model.select_action = select_action
-    else:
-        model.select_action = partial(type(model).select_action, model, noise=noise)
+    model.select_action = partial(type(model).select_action, model, noise=noise)
     env = gym.vector.SyncVectorEnv([env_factory] * 16, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
     return env, model, identity, identity, policy.preprocessor, policy.postprocessor
 
 
-def same_actions_as_lerobot(folder: Path, factory, chunked: bool = False) -> None:
+def same_actions_as_lerobot(folder: Path, factory) -> None:
     """Every executed action of 16 episodes, bitwise, as LeRobot's eval loop gives them."""
     from lerobot.scripts.lerobot_eval import rollout as lerobot_rollout
 
@@ -162,7 +149,7 @@ def same_actions_as_lerobot(folder: Path, factory, chunked: bool = False) -> Non
     seeds = list(range(1_000_000, 1_000_016))
     episodes = [Episode(Constant(ticket), s) for s in seeds]
     ours = rollout(policy, get_task(factory), episodes, record_actions=True)
-    theirs = lerobot_rollout(*lerobot_loop(policy, ticket, factory, chunked), seeds=seeds)["action"].numpy()
+    theirs = lerobot_rollout(*lerobot_loop(policy, ticket, factory), seeds=seeds)["action"].numpy()
     for episode, result in enumerate(ours):
         np.testing.assert_array_equal(result.actions, theirs[episode, : result.length])
 
@@ -263,47 +250,6 @@ def test_a_smolvla_is_searched_and_judged_through_the_cli_on_a_camera_task(tmp_p
     assert runs[0]["base"]["n"] == 4
     for key in ("base", "zero", "tickets", "validation_scores"):
         assert runs[0].get(key) == runs[1].get(key)
-
-
-PALIGEMMA = "google/paligemma-3b-pt-224"  # the tokenizer pi0's and pi0.5's processors name in LeRobot's code
-
-
-@pytest.fixture
-def paligemma_cached(tmp_path, backbone, monkeypatch):
-    """A Hugging Face cache in a temporary folder that holds the tiny backbone's tokenizer under
-    PaliGemma's name, as `hf download` would have put PaliGemma's there on a machine with a network."""
-    import shutil
-
-    from huggingface_hub import constants
-
-    repo = tmp_path / "hub" / f"models--{PALIGEMMA.replace('/', '--')}"
-    (repo / "refs").mkdir(parents=True)
-    (repo / "refs" / "main").write_text("0" * 40)
-    shutil.copytree(backbone, repo / "snapshots" / ("0" * 40))
-    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(tmp_path / "hub"))
-
-
-def pi(folder: Path, kind: str) -> Path:
-    """An untrained pi0 or pi0.5 at the smallest sizes LeRobot builds (Gemma 300M for both the VLM and
-    the action expert: 1.8B parameters), in bfloat16 (3.6 GB; in float32, loading one took more than
-    this machine's 24 GiB), one 32 px camera seen at 28 px; only the folder stays."""
-    import torch
-    from lerobot.policies.factory import get_policy_class, make_policy_config
-
-    inputs, outputs = features(1)
-    cfg = make_policy_config(kind, input_features=inputs, output_features=outputs, device="cpu",
-                             push_to_hub=False, dtype="bfloat16", paligemma_variant="gemma_300m",
-                             action_expert_variant="gemma_300m", image_resolution=(28, 28), chunk_size=10,
-                             n_action_steps=5, num_inference_steps=3)
-    torch.manual_seed(0)
-    return save(get_policy_class(kind)(cfg), cfg, folder)
-
-
-@pytest.mark.parametrize("kind", ["pi0", "pi05"])
-def test_pi0_and_pi05_act_as_in_lerobots_own_loop(tmp_path, paligemma_cached, kind):
-    """pi0's and pi0.5's select_action takes no noise: LeRobot's loop here calls predict_action_chunk(batch,
-    noise=ticket) and keeps select_action's queue, as the adapter does."""
-    same_actions_as_lerobot(pi(tmp_path / "policy", kind), one_camera, chunked=True)
 
 
 def test_the_shipped_smolvla_ticket_gives_lerobots_per_episode_successes():
