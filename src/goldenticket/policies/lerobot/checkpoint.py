@@ -121,7 +121,7 @@ class LeRobotPolicy:
         array taken as "agent_pos"), with n_obs_steps > 1 the last n_obs_steps of each episode
         ([B, n_obs_steps, ...], as rollout gives them); noise [B, *noise_shape] -> actions [B, n_exec, A]."""
         raw = per_array(np.asarray, obs if isinstance(obs, dict) else {"agent_pos": obs})
-        noise = torch.as_tensor(np.asarray(noise, dtype=np.float32))
+        noise = torch.tensor(np.asarray(noise, dtype=np.float32))  # a copy: tickets may be read-only
         n = len(noise)
         block = BLOCK if self.device == "cpu" else n  # on a GPU, the whole batch in one call
         rows = -n % block  # padding: copies of the first row, a valid observation
