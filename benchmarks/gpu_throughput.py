@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -68,7 +69,7 @@ def checkpoint(kind: str, folder: Path, smoke: bool) -> Path:
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.factory import get_policy_class, make_policy_config, make_pre_post_processors
 
-    size = 32 if smoke else CameraEnv.size
+    size = CameraEnv.size
     backbone = write_backbone(folder / "backbone", "tiny" if smoke else "smolvla")
     inputs = {"observation.state": PolicyFeature(FeatureType.STATE, (7,))}
     camera = PolicyFeature(FeatureType.VISUAL, (3, size, size))
@@ -87,14 +88,18 @@ def checkpoint(kind: str, folder: Path, smoke: bool) -> Path:
             "q01": -torch.ones(7), "q99": torch.ones(7)}
     for pipeline in make_pre_post_processors(cfg, dataset_stats={"observation.state": unit, "action": unit}):
         pipeline.save_pretrained(folder)
-    if kind == "pi0":  # offline: the tokenizer from the backbone folder, not PaliGemma's from the hub
-        path = folder / "policy_preprocessor.json"
-        steps = json.loads(path.read_text())
-        for step in steps["steps"]:
-            if step["registry_name"] == "tokenizer_processor":
-                step["config"]["tokenizer_name"] = str(backbone)
-        path.write_text(json.dumps(steps))
     return folder
+
+
+def cache_paligemma_tokenizer(cache: Path, tokenizer: Path) -> None:
+    """A Hugging Face cache at `cache` holding `tokenizer` under the name pi0's processor asks for in
+    LeRobot's code (PaliGemma's), so that a pi0 builds offline; the weights are random anyway."""
+    import shutil
+
+    repo = cache / "models--google--paligemma-3b-pt-224"
+    (repo / "refs").mkdir(parents=True)
+    (repo / "refs" / "main").write_text("0" * 40)
+    shutil.copytree(tokenizer, repo / "snapshots" / ("0" * 40))
 
 
 def latency(policy, batch: int, calls: int) -> float:
@@ -131,16 +136,21 @@ def main() -> None:
     parser.add_argument("--smoke", action="store_true", help="tiny models on the CPU (checks the script)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args()
+    cache = Path(tempfile.mkdtemp(prefix="gpu_throughput_hub"))
+    os.environ["HF_HUB_CACHE"] = str(cache)  # read when huggingface_hub is first imported, below
     import torch
 
     from goldenticket.policies import load_policy
 
     device = "cpu" if args.smoke else "cuda"
+    CameraEnv.size = 32 if args.smoke else CameraEnv.size  # the frames the models are built for
     if device == "cuda" and not torch.cuda.is_available():
         sys.exit("gpu_throughput: torch sees no CUDA GPU here; --smoke checks the script on the CPU")
     rows, started = [], time.perf_counter()
     for kind in ("smolvla",) if args.smoke else ("smolvla", "pi0"):
         with tempfile.TemporaryDirectory() as tmp:
+            if kind == "pi0":
+                cache_paligemma_tokenizer(cache, write_backbone(Path(tmp) / "tokenizer", "tiny"))
             folder = checkpoint(kind, Path(tmp) / kind, args.smoke)
             policy = load_policy(str(folder), device).instructed(INSTRUCTION)
             for batch in BATCHES[: 3 if args.smoke else None]:
