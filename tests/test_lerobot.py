@@ -8,7 +8,6 @@ import importlib.util
 import json
 import pickle
 import sys
-from functools import partial
 from pathlib import Path
 
 import gymnasium as gym
@@ -26,7 +25,10 @@ from goldenticket.tickets import Ticket
 
 ROOT = Path(__file__).parents[1]
 sys.path.insert(0, str(ROOT))  # examples.lerobot_reach, here and in worker processes
-from examples.lerobot_reach import LeRobotReach, make_env, make_vector_env  # noqa: E402
+from examples.lerobot_reach import make_env, make_vector_env  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from lerobot_checks import CameraReach, lerobot_loop, same_actions_as_lerobot  # noqa: E402
 
 HAS_LEROBOT = importlib.util.find_spec("lerobot") is not None
 SHIPPED = ROOT / "examples" / "lerobot_reach_policy"
@@ -88,30 +90,8 @@ def test_without_lerobot_a_checkpoint_says_how_to_install_it(tmp_path, capsys):
 
 # --- with LeRobot ------------------------------------------------------------------------------
 
-class PixelReach(LeRobotReach):
-    """The reach env with a camera image too: a 64 x 64 picture of the hand's position."""
-
-    observation_space = gym.spaces.Dict({**LeRobotReach.observation_space.spaces,
-                                         "pixels": gym.spaces.Box(0, 255, (64, 64, 3), np.uint8)})
-
-    @staticmethod
-    def with_pixels(obs: dict) -> dict:
-        picture = np.zeros((64, 64, 3), np.uint8)
-        row, col = np.clip(((obs["agent_pos"][:2] + 0.5) * 64).astype(int), 0, 60)
-        picture[row : row + 4, col : col + 4] = 255
-        return obs | {"pixels": picture}
-
-    def reset(self, seed=None, options=None):
-        obs, info = super().reset(seed=seed)
-        return self.with_pixels(obs), info
-
-    def step(self, action):
-        obs, *rest = super().step(action)
-        return self.with_pixels(obs), *rest
-
-
 def make_pixel_env() -> gym.Env:
-    return gym.wrappers.TimeLimit(PixelReach(), 40)
+    return gym.wrappers.TimeLimit(CameraReach(), 40)
 
 
 def lerobot_checkpoint(folder: Path, *, images: bool = False, **config) -> Path:
@@ -141,20 +121,6 @@ def lerobot_checkpoint(folder: Path, *, images: bool = False, **config) -> Path:
     return folder
 
 
-def lerobot_loop(policy, ticket: np.ndarray, env_factory) -> tuple:
-    """What LeRobot's eval functions (lerobot-eval's `rollout`, `eval_policy`) take after the env:
-    16 envs as lerobot-eval makes them, the policy's model answering select_action(batch,
-    noise=ticket), no env processing, the policy's pre- and postprocessor."""
-    import torch
-    from lerobot.processor import PolicyProcessorPipeline
-
-    model, identity = policy.model, PolicyProcessorPipeline(steps=[])
-    model.select_action = partial(type(model).select_action, model,
-                                  noise=torch.from_numpy(ticket).expand(16, *ticket.shape))
-    env = gym.vector.SyncVectorEnv([env_factory] * 16, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
-    return env, model, identity, identity, policy.preprocessor, policy.postprocessor
-
-
 @pytest.mark.parametrize(("settings", "factory"), [
     ({"n_obs_steps": 2}, make_env),
     ({"n_obs_steps": 1, "horizon": 16, "n_action_steps": 6}, make_env),
@@ -164,16 +130,7 @@ def lerobot_loop(policy, ticket: np.ndarray, env_factory) -> tuple:
 def test_actions_are_those_of_lerobots_own_loop(tmp_path, settings, factory):
     """Every executed action of every episode, bitwise, as select_action(batch, noise=ticket) gives
     them in lerobot-eval's rollout: per-episode history, LeRobot's pre- and postprocessing."""
-    policy = load_policy(str(lerobot_checkpoint(tmp_path / "policy", **settings)))
-    ticket = np.random.default_rng(1).standard_normal(policy.noise_shape).astype(np.float32)
-    seeds = list(range(1_000_000, 1_000_016))
-    episodes = [Episode(Constant(ticket), s) for s in seeds]
-    ours = rollout(policy, get_task(factory), episodes, record_actions=True)
-    from lerobot.scripts.lerobot_eval import rollout as lerobot_rollout
-
-    theirs = lerobot_rollout(*lerobot_loop(policy, ticket, factory), seeds=seeds)["action"].numpy()
-    for episode, result in enumerate(ours):
-        np.testing.assert_array_equal(result.actions, theirs[episode, : result.length])
+    same_actions_as_lerobot(lerobot_checkpoint(tmp_path / "policy", **settings), factory)
 
 
 @needs_lerobot

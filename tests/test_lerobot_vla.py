@@ -5,7 +5,6 @@ they run in LeRobot's venv (README, "LeRobot") and are skipped without it."""
 import importlib.util
 import json
 import sys
-from functools import partial
 from pathlib import Path
 
 import gymnasium as gym
@@ -21,55 +20,29 @@ from goldenticket.tasks import get_task
 
 ROOT = Path(__file__).parents[1]
 sys.path.insert(0, str(ROOT))  # examples.*, here and in worker processes
-from examples.lerobot_reach import LeRobotReach  # noqa: E402
+sys.path.insert(0, str(Path(__file__).parent))
+from lerobot_checks import CameraReach, same_actions_as_lerobot  # noqa: E402
 
 pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.skipif(
     importlib.util.find_spec("lerobot") is None, reason="LeRobot is not installed (its own venv: README)")]
-INSTRUCTION = "Reach a goal position"
+INSTRUCTION = CameraReach.task_description
 SIZE = 32  # camera frames, height and width
 
 
-class CameraReach(LeRobotReach):
-    """The reach env seen by `cameras` cameras (LeRobot's `pixels` dict), with LeRobot's instruction
-    attribute `task_description`."""
-
-    task_description = INSTRUCTION
-    cameras = 2
-
-    def __init__(self):
-        super().__init__()
-        frame = gym.spaces.Box(0, 255, (SIZE, SIZE, 3), np.uint8)
-        pixels = {f"image{i or ''}": frame for i in range(self.cameras)}
-        self.observation_space = gym.spaces.Dict({**LeRobotReach.observation_space.spaces,
-                                                  **({"pixels": gym.spaces.Dict(pixels)} if pixels else {})})
-
-    def seen(self, obs: dict) -> dict:
-        if not self.cameras:
-            return obs
-        frame = np.zeros((SIZE, SIZE, 3), np.uint8)
-        row, col = np.clip(((obs["agent_pos"][:2] + 0.5) * SIZE).astype(int), 0, SIZE - 4)
-        frame[row : row + 4, col : col + 4] = 255
-        return obs | {"pixels": {f"image{i or ''}": np.roll(frame, i, axis=0) for i in range(self.cameras)}}
-
-    def reset(self, seed=None, options=None):
-        obs, info = super().reset(seed=seed)
-        return self.seen(obs), info
-
-    def step(self, action):
-        obs, *rest = super().step(action)
-        return self.seen(obs), *rest
+class TwoCameras(CameraReach):
+    size, cameras = SIZE, ("image", "image1")
 
 
-class OneCamera(CameraReach):
-    cameras = 1
+class OneCamera(TwoCameras):
+    cameras = ("image",)
 
 
-class Unsaid(CameraReach):
+class Unsaid(TwoCameras):
     task_description = None
 
 
 def two_cameras() -> gym.Env:
-    return gym.wrappers.TimeLimit(CameraReach(), 12)
+    return gym.wrappers.TimeLimit(TwoCameras(), 12)
 
 
 def one_camera() -> gym.Env:
@@ -127,38 +100,11 @@ def smolvla(folder: Path, backbone: Path, cameras: int = 2, **settings) -> Path:
     return save(SmolVLAPolicy(cfg), cfg, folder)
 
 
-def lerobot_loop(policy, ticket: np.ndarray, env_factory) -> tuple:
-    """What lerobot-eval's `rollout` and `eval_policy` take after the env: 16 envs, the model answering
-    `select_action(batch, noise=ticket)`, no env processing, the policy's pre- and postprocessor."""
-    import torch
-    from lerobot.processor import PolicyProcessorPipeline
-
-    model, identity = policy.model, PolicyProcessorPipeline(steps=[])
-    noise = torch.from_numpy(ticket).expand(16, *ticket.shape)
-    model.select_action = partial(type(model).select_action, model, noise=noise)
-    env = gym.vector.SyncVectorEnv([env_factory] * 16, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
-    return env, model, identity, identity, policy.preprocessor, policy.postprocessor
-
-
-def same_actions_as_lerobot(folder: Path, factory) -> None:
-    """Every executed action of 16 episodes, bitwise, as LeRobot's eval loop gives them."""
-    from lerobot.scripts.lerobot_eval import rollout as lerobot_rollout
-
-    policy = load_policy(str(folder))
-    ticket = np.random.default_rng(1).standard_normal(policy.noise_shape).astype(np.float32)
-    seeds = list(range(1_000_000, 1_000_016))
-    episodes = [Episode(Constant(ticket), s) for s in seeds]
-    ours = rollout(policy, get_task(factory), episodes, record_actions=True)
-    theirs = lerobot_rollout(*lerobot_loop(policy, ticket, factory), seeds=seeds)["action"].numpy()
-    for episode, result in enumerate(ours):
-        np.testing.assert_array_equal(result.actions, theirs[episode, : result.length])
-
-
 @pytest.mark.parametrize(("factory", "settings"), [
     (two_cameras, {}), (one_camera, {}), (two_cameras, {"chunk_size": 6, "n_action_steps": 3}),
 ], ids=["two-cameras", "one-camera", "chunk-6"])
 def test_smolvla_acts_as_in_lerobots_own_loop(tmp_path, backbone, factory, settings):
-    folder = smolvla(tmp_path / "policy", backbone, cameras=factory().unwrapped.cameras, **settings)
+    folder = smolvla(tmp_path / "policy", backbone, cameras=len(factory().unwrapped.cameras), **settings)
     assert load_policy(str(folder)).noise_shape == (settings.get("chunk_size", 10), 32)
     same_actions_as_lerobot(folder, factory)
 
