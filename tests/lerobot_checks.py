@@ -2,6 +2,7 @@
 one `pixels` array, `observation.image`, or a dict of named cameras, `observation.images.*`), and
 LeRobot's own eval loop to hold a checkpoint's actions against."""
 
+import inspect
 from functools import partial
 from pathlib import Path
 
@@ -47,13 +48,17 @@ class CameraReach(LeRobotReach):
 
 def lerobot_loop(policy, ticket: np.ndarray, env_factory) -> tuple:
     """What lerobot-eval's `rollout` and `eval_policy` take after the env: 16 envs, the model answering
-    `select_action(batch, noise=ticket)`, no env processing, the policy's pre- and postprocessor."""
+    `select_action(batch)` with the ticket as its noise (passed to `select_action`, or where that takes
+    none, pi0's and pi0.5's, to the `predict_action_chunk` it calls), no env processing, the policy's
+    pre- and postprocessor."""
     import torch
     from lerobot.processor import PolicyProcessorPipeline
 
     model, identity = policy.model, PolicyProcessorPipeline(steps=[])
     noise = torch.from_numpy(ticket).expand(16, *ticket.shape)
-    model.select_action = partial(type(model).select_action, model, noise=noise)
+    method = "select_action" if "noise" in inspect.signature(model.select_action).parameters \
+        else "predict_action_chunk"
+    setattr(model, method, partial(getattr(type(model), method), model, noise=noise))
     env = gym.vector.SyncVectorEnv([env_factory] * 16, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
     return env, model, identity, identity, policy.preprocessor, policy.postprocessor
 

@@ -100,6 +100,54 @@ def smolvla(folder: Path, backbone: Path, cameras: int = 2, **settings) -> Path:
     return save(SmolVLAPolicy(cfg), cfg, folder)
 
 
+def small_vision(paligemma):
+    """PaliGemma's builder with a one-layer SigLIP projecting to the VLM's width (LeRobot pins 2048)."""
+    def build(config):
+        width = config.text_config.hidden_size
+        config.vision_config.update({"hidden_size": 32, "intermediate_size": 64, "num_hidden_layers": 1,
+                                     "num_attention_heads": 1, "projection_dim": width})
+        return paligemma(config=config)
+    return build
+
+
+@pytest.fixture
+def tiny_paligemma(monkeypatch, backbone):
+    """pi0 and pi0.5 at test size. LeRobot fixes their VLM and action expert to Gemma variants of 2B and
+    300M parameters and their tokenizer to PaliGemma's hub name; here both variants are one-layer Gemmas,
+    the vision tower is one SigLIP layer and the tokenizer is the tiny backbone's. The rest, the flow
+    matching, prefix, attention masks and processors, is LeRobot's own code."""
+    from lerobot.policies.pi0 import modeling_pi0, processor_pi0
+    from lerobot.policies.pi05 import modeling_pi05, processor_pi05
+    from lerobot.processor import TokenizerProcessorStep
+
+    gemma = modeling_pi0.GemmaConfig
+    sizes = {"gemma_2b": gemma(width=64, depth=1, mlp_dim=64, num_heads=1, num_kv_heads=1, head_dim=16),
+             "gemma_300m": gemma(width=32, depth=1, mlp_dim=32, num_heads=1, num_kv_heads=1, head_dim=16)}
+    for modeling in (modeling_pi0, modeling_pi05):
+        monkeypatch.setattr(modeling, "get_gemma_config", sizes.__getitem__)
+        monkeypatch.setattr(modeling, "PaliGemmaForConditionalGenerationWithPiGemma",
+                            small_vision(modeling.PaliGemmaForConditionalGenerationWithPiGemma))
+    for processor in (processor_pi0, processor_pi05):
+        monkeypatch.setattr(processor, "TokenizerProcessorStep",
+                            lambda **kw: TokenizerProcessorStep(**kw | {"tokenizer_name": str(backbone)}))
+
+
+def paligemma_vla(kind: str, folder: Path, cameras: int = 2) -> Path:
+    """An untrained pi0 or pi0.5 ("pi05"), of tiny_paligemma's sizes."""
+    import torch
+    from lerobot.policies.factory import get_policy_class, make_policy_config
+
+    inputs, outputs = features(cameras)
+    cfg = make_policy_config(kind, input_features=inputs, output_features=outputs, device="cpu",
+                             push_to_hub=False, chunk_size=10, n_action_steps=5, num_inference_steps=3)
+    torch.manual_seed(0)
+    return save(get_policy_class(kind)(cfg), cfg, folder)
+
+
+def vla(kind: str, folder: Path, backbone: Path) -> Path:
+    return smolvla(folder, backbone) if kind == "smolvla" else paligemma_vla(kind, folder)
+
+
 @pytest.mark.parametrize(("factory", "settings"), [
     (two_cameras, {}), (one_camera, {}), (two_cameras, {"chunk_size": 6, "n_action_steps": 3}),
 ], ids=["two-cameras", "one-camera", "chunk-6"])
@@ -115,10 +163,22 @@ def first_observation() -> dict:
             "pixels": {k: v[None] for k, v in obs["pixels"].items()}}
 
 
-def test_a_smolvla_ticket_fixes_its_actions_whatever_torch_draws(tmp_path, backbone):
+VLAS = ("smolvla", "pi0", "pi05")
+
+
+@pytest.mark.parametrize("kind", ["pi0", "pi05"])
+def test_pi0_and_pi05_act_as_in_lerobots_own_loop(tmp_path, tiny_paligemma, kind):
+    """Their select_action takes no noise: LeRobot's loop gets the ticket through predict_action_chunk."""
+    folder = paligemma_vla(kind, tmp_path / "policy")
+    assert load_policy(str(folder)).noise_shape == (10, 32)
+    same_actions_as_lerobot(folder, two_cameras)
+
+
+@pytest.mark.parametrize("kind", VLAS)
+def test_a_vla_ticket_fixes_its_actions_whatever_torch_draws(tmp_path, backbone, tiny_paligemma, kind):
     import torch
 
-    policy = load_policy(str(smolvla(tmp_path / "policy", backbone))).instructed(INSTRUCTION)
+    policy = load_policy(str(vla(kind, tmp_path / "policy", backbone))).instructed(INSTRUCTION)
     noise = np.random.default_rng(2).standard_normal((1, *policy.noise_shape)).astype(np.float32)
     torch.manual_seed(1)
     first = policy.act(first_observation(), noise)
@@ -127,10 +187,12 @@ def test_a_smolvla_ticket_fixes_its_actions_whatever_torch_draws(tmp_path, backb
     assert first.shape == (1, 5, 4)
 
 
-def test_the_instruction_is_what_the_policy_reads(tmp_path, backbone):
-    policy = load_policy(str(smolvla(tmp_path / "policy", backbone)))
+@pytest.mark.parametrize("kind", VLAS)
+def test_the_instruction_is_what_the_policy_reads(tmp_path, backbone, tiny_paligemma, kind):
+    policy = load_policy(str(vla(kind, tmp_path / "policy", backbone)))
     noise = np.zeros((1, *policy.noise_shape), np.float32)
     told = [policy.instructed(text).act(first_observation(), noise) for text in (INSTRUCTION, "Push it")]
+    assert policy.instructed("Push it").model is policy.model  # not loaded again
     assert not np.array_equal(*told)
     assert get_task(two_cameras).instruction == INSTRUCTION and get_task(no_instruction).instruction is None
 
@@ -175,6 +237,37 @@ def test_a_checkpoint_whose_backbone_is_not_on_disk_names_what_to_download(tmp_p
     line = capsys.readouterr().err.strip()
     assert "needs the backbone 'HuggingFaceTB/SmolVLM2' on disk" in line and "hf download" in line
     assert len(line.splitlines()) == 1
+
+
+def test_a_pi0_whose_tokenizer_is_not_on_disk_names_what_to_download(tmp_path, tiny_paligemma, capsys):
+    """A pi0 from the hub names PaliGemma's tokenizer in its preprocessor; offline, without it cached,
+    the one line says what to download."""
+    folder = paligemma_vla("pi0", tmp_path / "policy")
+    preprocessor = folder / "policy_preprocessor.json"
+    steps = json.loads(preprocessor.read_text())
+    for step in steps["steps"]:
+        if step["registry_name"] == "tokenizer_processor":
+            step["config"]["tokenizer_name"] = "google/paligemma-3b-pt-224"
+    preprocessor.write_text(json.dumps(steps))
+    assert main(["evaluate", "--policy", str(folder), "--task", "tests.test_lerobot_vla:two_cameras",
+                 "--seeds", "1000000:1000002", "--workers", "1"]) == 2
+    line = capsys.readouterr().err.strip()
+    assert "needs the backbone 'google/paligemma-3b-pt-224' on disk" in line and "hf download" in line
+    assert len(line.splitlines()) == 1
+
+
+def test_env_workers_sharing_one_smolvla_give_the_results_of_one_process(tmp_path, backbone):
+    """What `--device cuda` does with several workers, here on the CPU: the workers step their envs
+    and act through one SmolVLA in the main process, told each task's instruction."""
+    from goldenticket.noise import Gaussian
+    from goldenticket.rollout import Engine
+
+    folder, task = str(smolvla(tmp_path / "policy", backbone)), get_task(two_cameras)
+    episodes = [Episode(Gaussian(), s) for s in range(1_000_000, 1_000_008)]
+    with Engine(folder, task) as alone, \
+            Engine(folder, task, workers=2, shard_size=4, share_model=True) as shared:
+        results = [[(r.success, r.ret, r.length) for r in e.evaluate(episodes)] for e in (alone, shared)]
+    assert results[0] == results[1]
 
 
 def test_a_smolvla_is_searched_and_judged_through_the_cli_on_a_camera_task(tmp_path, backbone):

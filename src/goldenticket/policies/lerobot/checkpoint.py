@@ -112,6 +112,11 @@ class LeRobotPolicy:
     def __reduce__(self):  # worker processes load the folder again
         return type(self), (self.path, self.steps, self.name, self.device), {"instruction": self.instruction}
 
+    def __copy__(self) -> LeRobotPolicy:  # in this process: the same model
+        clone = object.__new__(type(self))
+        clone.__dict__.update(self.__dict__)
+        return clone
+
     def fingerprint(self) -> str:
         """Hash of the folder's config, weights and processor files, and the denoising step count."""
         return f"lerobot-{self._digest}-steps{self.denoising_steps}"
@@ -171,13 +176,17 @@ class LeRobotPolicy:
 
 @contextlib.contextmanager
 def _backbone_named(cfg, path: Path):
-    """A one-line UserError where the backbone a VLA config names is neither a folder nor offline cached."""
+    """A one-line UserError where the backbone a VLA config names is neither a folder nor offline cached
+    (an OSError, raised as it is or, from a processor step, as the cause of LeRobot's ValueError)."""
     try:
         yield
-    except OSError as error:
+    except (OSError, ValueError) as error:
+        missing = error if isinstance(error, OSError) else error.__cause__
+        if not isinstance(missing, OSError):
+            raise
         backbone = backbone_name(cfg, path)
         raise UserError(f"{path}: the {cfg.type} checkpoint needs the backbone {backbone!r} on disk, and it "
-                        f"is not there ({str(error).splitlines()[0]}); download it where a network is "
+                        f"is not there ({str(missing).splitlines()[0]}); download it where a network is "
                         f"(`hf download {backbone}`, into the Hugging Face cache, ~/.cache/huggingface) or "
                         "set \"vlm_model_name\" in its config.json to a local folder") from None
 
