@@ -10,7 +10,8 @@ The models are built offline (SmolVLA on a SmolVLM2-500M-sized backbone from
 `examples/smolvla_backbone.py`; pi0 with LeRobot's gemma_2b VLM and gemma_300m expert, in bfloat16
 as its config runs it), saved, and loaded back as a user's checkpoint would be. Latency is the
 median wall time of one `act` call (a whole chunk); engine throughput runs a camera env of 50 steps
-per episode with one process holding the model, every live episode in one batched call.
+per episode, in one process, then in 4 env workers that act through the one model in the main
+process (each worker's live episodes in one batched call).
 """
 
 from __future__ import annotations
@@ -59,8 +60,18 @@ class CameraEnv(gym.Env):
         return self._obs, 0.0, False, False, {"is_success": False}
 
 
+class SmokeEnv(CameraEnv):
+    """The frames of --smoke's tiny SmolVLA."""
+
+    size = 32
+
+
 def make_env() -> gym.Env:
     return gym.wrappers.TimeLimit(CameraEnv(), STEPS)
+
+
+def make_smoke_env() -> gym.Env:
+    return gym.wrappers.TimeLimit(SmokeEnv(), STEPS)
 
 
 def checkpoint(kind: str, folder: Path, smoke: bool) -> Path:
@@ -69,7 +80,7 @@ def checkpoint(kind: str, folder: Path, smoke: bool) -> Path:
     from lerobot.configs.types import FeatureType, PolicyFeature
     from lerobot.policies.factory import get_policy_class, make_policy_config, make_pre_post_processors
 
-    size = CameraEnv.size
+    size = (SmokeEnv if smoke else CameraEnv).size
     backbone = write_backbone(folder / "backbone", "tiny" if smoke else "smolvla")
     inputs = {"observation.state": PolicyFeature(FeatureType.STATE, (7,))}
     camera = PolicyFeature(FeatureType.VISUAL, (3, size, size))
@@ -102,9 +113,9 @@ def cache_paligemma_tokenizer(cache: Path, tokenizer: Path) -> None:
     shutil.copytree(tokenizer, repo / "snapshots" / ("0" * 40))
 
 
-def latency(policy, batch: int, calls: int) -> float:
+def latency(policy, env_factory, batch: int, calls: int) -> float:
     """Median seconds of one act call on `batch` rows (after one warm-up call)."""
-    obs = make_env().reset(seed=0)[0]
+    obs = env_factory().reset(seed=0)[0]
     rows = {"agent_pos": np.repeat(obs["agent_pos"][None], batch, 0),
             "pixels": {c: np.repeat(v[None], batch, 0) for c, v in obs["pixels"].items()}}
     noise = np.random.default_rng(0).standard_normal((batch, *policy.noise_shape)).astype(np.float32)
@@ -117,15 +128,16 @@ def latency(policy, batch: int, calls: int) -> float:
     return statistics.median(times)
 
 
-def engine_rate(folder: Path, device: str, episodes: int) -> float:
-    """Episodes per second of the engine, one process holding the model, on the camera env."""
+def engine_rate(folder: Path, env_factory, device: str, episodes: int, workers: int) -> float:
+    """Episodes per second of the engine on the camera env: one process, or `workers` env workers
+    acting through the one model in the main process (as `--device cuda --workers N` runs)."""
     from goldenticket.noise import Gaussian
-    from goldenticket.policies import load_policy
     from goldenticket.rollout import Engine, Episode
     from goldenticket.tasks import get_task
 
-    policy = load_policy(str(folder), device)
-    with Engine(policy, get_task(make_env), loaded=policy, shard_size=episodes) as engine:
+    with Engine(str(folder), get_task(env_factory), workers=workers, shard_size=episodes // workers,
+                device=device, share_model=True) as engine:
+        engine.evaluate([Episode(Gaussian(), episodes + s) for s in range(episodes)])  # every worker started
         start = time.perf_counter()
         engine.evaluate([Episode(Gaussian(), s) for s in range(episodes)])
     return episodes / (time.perf_counter() - start)
@@ -143,7 +155,7 @@ def main() -> None:
     from goldenticket.policies import load_policy
 
     device = "cpu" if args.smoke else "cuda"
-    CameraEnv.size = 32 if args.smoke else CameraEnv.size  # the frames the models are built for
+    env_factory = make_smoke_env if args.smoke else make_env
     if device == "cuda" and not torch.cuda.is_available():
         sys.exit("gpu_throughput: torch sees no CUDA GPU here; --smoke checks the script on the CPU")
     rows, started = [], time.perf_counter()
@@ -154,12 +166,14 @@ def main() -> None:
             folder = checkpoint(kind, Path(tmp) / kind, args.smoke)
             policy = load_policy(str(folder), device).instructed(INSTRUCTION)
             for batch in BATCHES[: 3 if args.smoke else None]:
-                seconds = latency(policy, batch, 2 if args.smoke else 10)
+                seconds = latency(policy, env_factory, batch, 2 if args.smoke else 10)
                 rows.append({"model": kind, "batch": batch, "call_s": seconds, "rows_per_s": batch / seconds})
                 print(rows[-1], flush=True)
-            rate = engine_rate(folder, device, 4 if args.smoke else 64)
-            rows.append({"model": kind, "engine_episodes_per_s": rate, "episode_steps": STEPS})
-            print(rows[-1], flush=True)
+            for workers in (1, 4):
+                rate = engine_rate(folder, env_factory, device, 8 if args.smoke else 64, workers)
+                rows.append({"model": kind, "env_workers": workers, "engine_episodes_per_s": rate,
+                             "episode_steps": STEPS})
+                print(rows[-1], flush=True)
     wall = time.perf_counter() - started
     if args.smoke:
         print(f"smoke run: {wall:.0f} s, nothing written")

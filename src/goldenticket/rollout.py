@@ -18,6 +18,7 @@ from goldenticket.local_pool import LocalPool, WorkerDied
 from goldenticket.noise import NoiseSource
 from goldenticket.objectives import OBJECTIVES, PROGRESS_OBJECTIVES
 from goldenticket.policies import NoisePolicy, for_task, load_policy, policy_label
+from goldenticket.shared_model import PolicyServer
 from goldenticket.tasks import Task
 from goldenticket.tasks.base import observation_digest, stack
 
@@ -175,10 +176,12 @@ class Engine:
 
     def __init__(self, policy: str | NoisePolicy, task: Task | Sequence[Task], *, objective: str = "success",
                  workers: int = 1, shard_size: int = 16, backend: str = "local", address: str | None = None,
-                 loaded: NoisePolicy | None = None, device: str = "cpu"):
+                 loaded: NoisePolicy | None = None, device: str = "cpu", share_model: bool | None = None):
         """`policy` as workers rebuild it (a name, or the object pickled), on `device`; `loaded`: the
         policy already built from it, used in-process instead of building it again. A shard's episodes run
-        side by side, one env each: 16 fills one block of the bundled policies' batched call."""
+        side by side, one env each: 16 fills one block of the bundled policies' batched call.
+        `share_model` (by default: on a device other than the CPU, with local workers): the workers step
+        their envs and act through one policy in this process (`shared_model.PolicyServer`)."""
         most = 4 * (os.cpu_count() or 1)
         if backend not in BACKENDS:
             raise OptionError(f"unknown backend {backend!r}; choose from {list(BACKENDS)}", "backend")
@@ -188,13 +191,18 @@ class Engine:
             raise OptionError(f"workers must be between 1 and {most} (4 per CPU here), got {workers}",
                               "workers")
         local = backend == "local" and workers == 1
-        self.policy = (loaded or load_policy(policy, device)) if local else None
+        if share_model is None:
+            share_model = device != "cpu" and backend == "local"
+        shared = share_model and not local
+        self.policy = (loaded or load_policy(policy, device)) if local or shared else None
         self.label, self.in_workers = policy_label(loaded or policy), not local  # for messages
         self.tasks = {t.name: t for t in ([task] if hasattr(task, "make_env") else task)}
         self.task = next(iter(self.tasks.values()))
         self.objective, self.shard_size = objective, shard_size
         self._envs: dict[str, list] = {name: [] for name in self.tasks}
-        self._pool = None
+        self._pool, self._server = None, PolicyServer(self.policy) if shared else None
+        if self._server:
+            policy, device = self._server.client(), "cpu"
         if not local:  # each worker rebuilds a named policy, or unpickles a policy object
             picklable((policy, self.tasks), f"policy {policy_label(policy)!r} or task {self.task.name!r}")
             initargs = (policy, self.tasks, objective, device)
@@ -229,6 +237,9 @@ class Engine:
         if self._pool is not None:
             self._pool.terminate()
             self._pool = None
+        if self._server is not None:
+            self._server.close()
+            self._server = None
 
     def __enter__(self) -> Engine:
         return self
