@@ -10,6 +10,7 @@ import pytest
 from goldenticket.errors import UserError
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.rollout import Engine, Episode
+from goldenticket.shared_model import PolicyServer
 from goldenticket.tasks import get_task, seeds_in
 
 sys.path.insert(0, str(Path(__file__).parent))  # byo_example, here and in worker processes
@@ -41,3 +42,11 @@ def test_an_error_in_the_shared_policy_reaches_the_run_as_one_line():
             pytest.raises(UserError, match=line) as error:
         engine.evaluate([Episode(Gaussian(), s) for s in seeds_in("heldout", 2)])
     assert len(str(error.value).splitlines()) == 1
+
+
+def test_a_multi_task_policy_is_not_shared_unconditioned():
+    class MultiTask:
+        name, tasks, noise_shape, n_exec = "multi", ("a", "b"), (8, 4), 4
+
+    with pytest.raises(UserError, match="conditioned on its tasks; workers cannot share it"):
+        PolicyServer(MultiTask())

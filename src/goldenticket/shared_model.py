@@ -20,6 +20,8 @@ class PolicyServer:
 
     def __init__(self, policy: NoisePolicy):
         self.policy, self._label = policy, policy_label(policy)
+        if getattr(policy, "tasks", None):  # its clients would act unconditioned
+            raise UserError(f"policy {self._label!r} is conditioned on its tasks; workers cannot share it")
         self._authkey = os.urandom(16)
         self._listener = Listener(family="AF_UNIX", authkey=self._authkey)
         self._lock = threading.Lock()  # one model call at a time
