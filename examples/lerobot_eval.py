@@ -27,7 +27,7 @@ EXAMPLES = {  # the policy folder, and its ticket for each task
     "reach": (HERE / "lerobot_reach_policy",
               {"examples.lerobot_reach:make_env": HERE / "lerobot_reach_ticket.safetensors"}),
     "smolvla": (HERE / "smolvla_metaworld_policy",
-                {"metaworld-pixels/button-press-topdown-v3": HERE / "smolvla_metaworld_ticket.safetensors"}),
+                {"metaworld-pixels/drawer-open-v3": HERE / "smolvla_metaworld_ticket.safetensors"}),
 }
 ENVS = 16  # lerobot-eval's --eval.batch_size: one block of the adapter's batched call
 

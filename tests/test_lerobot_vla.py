@@ -292,7 +292,7 @@ def test_a_smolvla_is_searched_and_judged_through_the_cli_on_a_camera_task(tmp_p
 
 
 def test_the_shipped_smolvla_ticket_gives_lerobots_per_episode_successes():
-    """The shipped SmolVLA and its button-press ticket in LeRobot's own eval loop (select_action with
+    """The shipped SmolVLA and its drawer-open ticket in LeRobot's own eval loop (select_action with
     the ticket, the instruction from the env) and in goldenticket's engine: the same episodes succeed."""
     import torch
 
@@ -300,8 +300,8 @@ def test_the_shipped_smolvla_ticket_gives_lerobots_per_episode_successes():
     from goldenticket.tickets import Ticket
 
     folder, tickets = EXAMPLES["smolvla"]
-    task = "metaworld-pixels/button-press-topdown-v3"
+    (task, ticket_file), = tickets.items()
     policy, seeds = load_policy(str(folder)), range(1_005_000, 1_005_016)
-    ticket = torch.from_numpy(Ticket.load(tickets[task], expected_shape=policy.noise_shape).noise)
+    ticket = torch.from_numpy(Ticket.load(ticket_file, expected_shape=policy.noise_shape).noise)
     ours = goldenticket_successes(policy, ticket, task, seeds)
     assert ours == lerobot_successes(policy, ticket, task, seeds) and sum(ours) > 0
