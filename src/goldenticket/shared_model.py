@@ -48,8 +48,8 @@ class PolicyServer:
                 instruction, obs, noise = conn.recv()
             except (EOFError, OSError):  # the worker has gone
                 return
-            policy = self.policy.instructed(instruction) if instruction is not None else self.policy
             try:
+                policy = self.policy.instructed(instruction) if instruction is not None else self.policy
                 with self._lock:
                     answer = call_users(policy.act, f"policy {self._label!r}: act()", obs, noise), None
             except UserError as error:
