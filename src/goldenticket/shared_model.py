@@ -49,12 +49,16 @@ class PolicyServer:
             except (EOFError, OSError):  # the worker has gone
                 return
             try:
-                policy = self.policy.instructed(instruction) if instruction is not None else self.policy
                 with self._lock:
-                    answer = call_users(policy.act, f"policy {self._label!r}: act()", obs, noise), None
-            except UserError as error:
+                    actions = call_users(self._act, f"policy {self._label!r}: act()", instruction, obs, noise)
+                answer = actions, None
+            except UserError as error:  # any failure, in one line
                 answer = None, error
             conn.send(answer)
+
+    def _act(self, instruction: str | None, obs, noise):
+        policy = self.policy.instructed(instruction) if instruction is not None else self.policy
+        return policy.act(obs, noise)
 
     def close(self) -> None:
         self._listener.close()
