@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Evaluator, judge
+from goldenticket.evaluation import Bar, Evaluator, judge
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.rollout import NONFINITE, Engine
 from goldenticket.store import RunStore
@@ -72,3 +72,11 @@ def test_a_policy_non_finite_on_too_many_heldout_episodes_stops_the_run_and_its_
         lenient = Evaluator(engine, RunStore(tmp_path / "run.sqlite"), max_nonfinite=1)
         results = lenient.run([("base", Gaussian(), seeds)])[0]
         assert len(results) == 40 and all(r.cause == NONFINITE and not r.success for r in results)
+
+
+def test_a_bar_that_a_signal_cut_off_in_its_constructor_closes_quietly():
+    """Ctrl-C inside tqdm's __init__ leaves a bar with no position; collecting it must not print a
+    traceback after the one-line stop message."""
+    bar = Bar.__new__(Bar)
+    bar.disable, bar.leave = False, True  # what __init__ had set before the signal
+    bar.__del__()

@@ -24,6 +24,15 @@ BROKEN_UNDER = ("base", "zero")  # both non-finite too often: the policy or its 
 Job = tuple[str, NoiseSource, Sequence[int]]  # (label, noise source, seeds)
 
 
+class Bar(tqdm):
+    """A tqdm bar that Ctrl-C or SIGTERM may cut off inside its constructor: then, half built, it has
+    nothing to close (tqdm's own __del__ would print a traceback after the one-line stop message)."""
+
+    def __del__(self):
+        if hasattr(self, "pos"):
+            super().__del__()
+
+
 class Evaluator:
     """Runs (label, noise source, seeds) through the engine, recording every episode.
 
@@ -56,7 +65,7 @@ class Evaluator:
 
     def progress(self, total: int | None, desc: str) -> tqdm:
         """A tqdm bar that this evaluator advances as episodes finish (or are read back)."""
-        bar = tqdm(total=total, desc=desc, unit="ep", dynamic_ncols=True)
+        bar = Bar(total=total, desc=desc, unit="ep", dynamic_ncols=True)
         self.on_done = bar.update
         return bar
 
