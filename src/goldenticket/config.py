@@ -149,7 +149,7 @@ class EngineOptions:
                                   "broken) only when more than this fraction of the held-out episodes of "
                                   "both the base and the zero ticket end so")
     device: str = option("cpu", "where a LeRobot checkpoint's model runs: cpu, or cuda / cuda:N (there the "
-                         "numbers hold for the same GPU model, driver and versions; run --workers 1)")
+                         "numbers hold for the same GPU model, driver and versions; workers share one model)")
 
     def check(self) -> None:  # workers: the engine knows this machine's limit (rollout.Engine)
         check_max_nonfinite(self.max_nonfinite)
