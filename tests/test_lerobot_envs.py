@@ -84,6 +84,7 @@ def test_a_libero_step_without_a_frame_leaves_the_next_frame_as_it_was(libero_ta
 
 def test_aloha_draws_one_camera_and_its_frames_are_gym_alohas():
     """Steps unseen, then one read: the observation gym-aloha gives after the same actions, bitwise."""
+    import gym_aloha  # noqa: F401 - registers its envs
     import gymnasium as gym
     from lerobot.envs.configs import AlohaEnv
 
