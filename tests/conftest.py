@@ -4,12 +4,12 @@ import torch
 
 from goldenticket.policies import MLPPolicy, PolicyConfig
 
-SLOW_TOO = ("browser", "ray", "lerobot")
+SLOW_TOO = ("browser", "ray", "lerobot", "robomimic")
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items) -> None:
-    """Browser, Ray and LeRobot tests are slow too: `-m "not slow"` is the fast tier."""
+    """Browser, Ray, LeRobot and robomimic tests are slow too: `-m "not slow"` is the fast tier."""
     for item in items:
         if any(item.get_closest_marker(name) for name in SLOW_TOO):
             item.add_marker(pytest.mark.slow)

@@ -25,8 +25,9 @@ def _commands(text: str) -> list[str]:
 
 def _ci() -> set[str]:
     """What .ci/run runs: each command and each run of commands joined by && within one, its
-    LeRobot venv "$V" written as README writes it."""
+    LeRobot venv "$V" and robomimic venv "$R" written as README writes them."""
     script = re.sub(r'"\$V(/[^"]*)?"', r"lerobot-venv\1", (ROOT / ".ci" / "run").read_text())
+    script = re.sub(r'"\$R(/[^"]*)?"', r"robomimic-venv\1", script)
     chains = [command.split(" && ") for command in _commands(script)]
     return {" && ".join(c[i:j]) for c in chains for i in range(len(c)) for j in range(i + 1, len(c) + 1)}
 

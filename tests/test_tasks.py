@@ -79,6 +79,17 @@ def test_lerobot_envs_without_lerobot_say_how_to_install_it():
         get_task("pusht")
 
 
+def test_unknown_robomimic_tasks_are_one_line():
+    with pytest.raises(UserError, match="unknown robomimic task 'robomimic/stack'; they are robomimic/lift"):
+        get_task("robomimic/stack")
+
+
+@pytest.mark.skipif(importlib.util.find_spec("robosuite") is not None, reason="robosuite is installed here")
+def test_robomimic_tasks_without_robosuite_say_how_to_install_it():
+    with pytest.raises(UserError, match=r"tasks need robosuite 1.5.2: pip install -e \"\.\[robomimic\]"):
+        get_task("robomimic/can").make_env()
+
+
 def test_objectives_rank_episodes_as_documented():
     from goldenticket.tasks import OBJECTIVES
 

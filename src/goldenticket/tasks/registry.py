@@ -10,12 +10,13 @@ from goldenticket.tasks.gym import GymTask
 from goldenticket.tasks.lerobot_envs import LeRobotEnvTask, is_lerobot_env_task
 from goldenticket.tasks.metaworld import MetaWorldTask, task_names
 from goldenticket.tasks.pixels import PixelsTask, pixel_task_names
+from goldenticket.tasks.robomimic import RobomimicTask
 
 
-def get_task(task: str | Callable, max_steps: int | None = None,
-             success: Callable | str | None = None) -> MetaWorldTask | GymTask | LeRobotEnvTask:
-    """A built-in task by name (Meta-World's, or LeRobot's simulated envs), or a Gymnasium env from a
-    factory (a callable or an import string `pkg.mod:factory`) with an optional success predicate;
+def get_task(task: str | Callable, max_steps: int | None = None, success: Callable | str | None = None
+             ) -> MetaWorldTask | GymTask | LeRobotEnvTask | RobomimicTask:
+    """A built-in task by name (Meta-World's, robomimic's, LeRobot's simulated envs), or a Gymnasium env
+    from a factory (a callable or an import string `pkg.mod:factory`) with an optional success predicate;
     unknown names are a UserError listing a few valid ones."""
     if max_steps is not None and max_steps < 1:
         raise OptionError(f"max_steps must be >= 1, got {max_steps}", "max_steps")
@@ -25,6 +26,8 @@ def get_task(task: str | Callable, max_steps: int | None = None,
     if success is not None:
         raise OptionError(f"success applies to Gymnasium tasks; {task!r} has its own success signal",
                           "success")
+    if task.startswith("robomimic/"):
+        return RobomimicTask(task, **limit)
     if is_lerobot_env_task(task):
         return LeRobotEnvTask(task, **limit)
     if task in pixel_task_names():
