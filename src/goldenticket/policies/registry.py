@@ -14,7 +14,7 @@ from pathlib import Path
 
 from goldenticket.errors import UserError
 from goldenticket.factories import build, call_users, import_name, is_import_string
-from goldenticket.policies import lerobot
+from goldenticket.policies import dppo, lerobot
 from goldenticket.policies.base import NoisePolicy, TicketedPolicy
 from goldenticket.policies.mlp import MLPPolicy
 from goldenticket.tickets import MAX_VALUES, Ticket
@@ -58,8 +58,9 @@ def split_steps(name: str) -> tuple[str, int | None]:
 
 
 def load_policy(name: str | NoisePolicy, device: str = "cpu") -> NoisePolicy:
-    """A bundled policy by name, a policy directory (config.json + model.safetensors) or a LeRobot
-    checkpoint folder, where an `@N` suffix sets the number of denoising steps, any NoisePolicy
+    """A bundled policy by name, a policy directory (config.json + model.safetensors), a LeRobot
+    checkpoint folder or a DPPO checkpoint (a folder with a `.pt`, or the `.pt`), where an `@N` suffix
+    sets the number of denoising steps, any NoisePolicy
     built by an import string `package.module:factory`, or a NoisePolicy object itself (checked).
     `device` places a LeRobot checkpoint's model; every other policy runs where it runs (the
     bundled ones on the CPU, where their numbers are the same on every machine)."""
@@ -74,6 +75,8 @@ def load_policy(name: str | NoisePolicy, device: str = "cpu") -> NoisePolicy:
     if is_import_string(name):
         return _checked(build(name, "policy"), name)
     path = Path(base)
+    if dppo.is_checkpoint(path):
+        return dppo.load(path, steps, name)
     if not (path / "config.json").is_file():
         path = _bundled(base)
     policy = MLPPolicy.load(path)
@@ -85,11 +88,13 @@ def load_policy(name: str | NoisePolicy, device: str = "cpu") -> NoisePolicy:
 def bundled_task(name: str) -> str | None:
     """The task a bundled single-task policy was trained on, the folder its name lies in
     (`metaworld/pick-place-v3/flow@2` -> `metaworld/pick-place-v3`); None for a multi-task one and for
-    any other policy (an import string, a folder, a LeRobot checkpoint); UserError for an unknown name."""
+    any other policy (an import string, a folder, a LeRobot or DPPO checkpoint); UserError for an unknown
+    name."""
     if is_import_string(name):
         return None
     base, _ = split_steps(name)
-    if lerobot.is_checkpoint(Path(base)) or (Path(base) / "config.json").is_file():
+    path = Path(base)
+    if lerobot.is_checkpoint(path) or dppo.is_checkpoint(path) or (path / "config.json").is_file():
         return None
     if json.loads((_bundled(base) / "config.json").read_text()).get("tasks"):
         return None

