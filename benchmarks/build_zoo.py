@@ -1,8 +1,10 @@
-"""Train the MT10 policy zoo into the package: a flow and a DDIM policy per task, and one
-multi-task flow and DDIM policy for all ten (`metaworld/mt10/<kind>`, told the task by a one-hot).
+"""Train the policy zoo into the package: a flow and a DDIM policy per MT10 task, one multi-task
+flow and DDIM policy for all ten (`metaworld/mt10/<kind>`, told the task by a one-hot), and a flow
+and a DDIM policy for robomimic's Lift and Can (run in robosuite's venv: README, "robomimic").
 
     python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]
     python benchmarks/build_zoo.py --multitask [--only flow]   # the two MT10 policies
+    robomimic-venv/bin/python benchmarks/build_zoo.py --robomimic [--only robomimic/lift]
     python benchmarks/build_zoo.py --remeasure   # re-measure every card's base and zero ticket
 
 Resumable: a policy folder that already has its card.json is kept. Each recipe says why the
@@ -36,6 +38,8 @@ RECIPES = {
     "window-close-v3": (10, FEW_NOISY),
     "peg-insert-side-v3": (20, DemoStyle(grasp_offset=0.02, action_noise=0.1)),
 }
+ROBOMIMIC = {"robomimic/lift": (10, DemoStyle(grasp_offset=0.02, action_noise=0.3)),
+             "robomimic/can": (10, DemoStyle(grasp_offset=0.02, goal_offset=0.02, action_noise=0.3))}
 TRAINED_STEPS = {"flow": 10, "ddim": 8}  # kind -> denoising steps it is trained with
 TRAIN_STEPS = 20_000
 MULTITASK_TRAIN_STEPS = 60_000  # ten tasks' data through one network
@@ -47,11 +51,11 @@ def recipe(task: str) -> tuple[int, DemoStyle]:
 
 
 def build(job: tuple[str, str]) -> str:
-    task, kind = job
-    demos, style = recipe(task)
-    cfg = TrainConfig(task=f"metaworld/{task}", kind=kind, demos=demos, steps=TRAIN_STEPS,
-                      denoise_steps=TRAINED_STEPS[kind], **asdict(style))
-    card = build_policy(cfg, BUNDLED_DIR / "metaworld" / task / kind)
+    task, kind = job  # a full task name
+    demos, style = ROBOMIMIC[task] if task in ROBOMIMIC else recipe(task.removeprefix("metaworld/"))
+    cfg = TrainConfig(task=task, kind=kind, demos=demos, steps=TRAIN_STEPS, denoise_steps=TRAINED_STEPS[kind],
+                      **asdict(style))
+    card = build_policy(cfg, BUNDLED_DIR / task / kind)
     base, zero = card["base"]["success_rate"], card["zero"]["success_rate"]
     return f"{card['policy']}: base {base:.1%}, zero {zero:.1%}"
 
@@ -63,13 +67,13 @@ def build_multitask(kind: str) -> str:
     return f"{name}: base {card['base']['success_rate']:.1%}, zero {card['zero']['success_rate']:.1%}"
 
 
-def remeasure(tasks: tuple[str, ...], workers: int) -> None:
+def remeasure(tasks: list[str], workers: int) -> None:
     """Measure each bundled card's base and zero-ticket success again with today's code."""
     for task in tasks:
         for kind in TRAINED_STEPS:
-            folder = BUNDLED_DIR / "metaworld" / task / kind
+            folder = BUNDLED_DIR / task / kind
             card = json.loads((folder / "card.json").read_text())
-            card |= measure(folder, get_task(f"metaworld/{task}"), card["base"]["n"], workers)
+            card |= measure(folder, get_task(task), card["base"]["n"], workers)
             write_card(folder, card, MLPPolicy.load(folder).cfg)
             print(f"{card['policy']}: base {card['base']['success_rate']:.1%}, "
                   f"zero {card['zero']['success_rate']:.1%}", flush=True)
@@ -78,8 +82,9 @@ def remeasure(tasks: tuple[str, ...], workers: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=2, help="policies trained at once (1 core each)")
-    parser.add_argument("--only", nargs="*", choices=[*MT10, *TRAINED_STEPS], default=None,
+    parser.add_argument("--only", nargs="*", choices=[*MT10, *ROBOMIMIC, *TRAINED_STEPS], default=None,
                         help="tasks (or, with --multitask, kinds) to build")
+    parser.add_argument("--robomimic", action="store_true", help="build the robomimic policies")
     parser.add_argument("--multitask", action="store_true", help="build the MT10 multi-task policies")
     parser.add_argument("--remeasure", action="store_true",
                         help="re-measure the cards of the bundled policies instead of training")
@@ -88,11 +93,12 @@ def main() -> None:
         todo, run = [k for k in args.only or TRAINED_STEPS
                      if not (BUNDLED_DIR / "metaworld/mt10" / k / "card.json").is_file()], build_multitask
     else:
-        tasks = args.only or MT10
+        names = [t if t in ROBOMIMIC else f"metaworld/{t}" for t in args.only or (ROBOMIMIC if args.robomimic
+                                                                                  else MT10)]
         if args.remeasure:
-            return remeasure(tasks, args.jobs)
-        todo, run = [(t, k) for t in tasks for k in TRAINED_STEPS
-                     if not (BUNDLED_DIR / "metaworld" / t / k / "card.json").is_file()], build
+            return remeasure(names, args.jobs)
+        todo, run = [(t, k) for t in names for k in TRAINED_STEPS
+                     if not (BUNDLED_DIR / t / k / "card.json").is_file()], build
     print(f"{len(todo)} policies to train", flush=True)
     with mp.get_context("spawn").Pool(args.jobs) as pool:
         for line in pool.imap_unordered(run, todo):

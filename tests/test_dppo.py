@@ -6,16 +6,21 @@ shaped as its robomimic configs and its normalization.npz. Actions are checked a
 numpy re-implementation of DPPO's network and DDIM sampling written from DPPO's code.
 """
 
+import copy
 import math
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 
 from goldenticket.cli import main
+from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import dppo, load_policy
 from goldenticket.policies.registry import bundled_task
+from goldenticket.rollout import Episode, rollout
+from goldenticket.tasks import get_task
 
 OBS, ACT, H, T = 5, 2, 4, 20
 RNG_SEED = 0
@@ -147,7 +152,8 @@ NET_PLAIN = {"mlp_dims": [24, 24], "residual": False, "time_dim": 8, "cond_mlp_d
              "layernorm": True, "activation": "ReLU", "out_activation": "Tanh"}
 NORMALIZATION = {"obs_min": np.linspace(-2, 0, OBS, dtype=np.float32),
                  "obs_max": np.linspace(1, 3, OBS, dtype=np.float32),
-                 "action_min": np.array([-0.5, -2.0], np.float32), "action_max": np.array([1.5, 0.0], np.float32)}
+                 "action_min": np.array([-0.5, -2.0], np.float32),
+                 "action_max": np.array([1.5, 0.0], np.float32)}
 
 
 def dppo_shapes(mlp_dims, residual, time_dim=16, cond_mlp_dims=None, layernorm=False, cond_dim=OBS,
@@ -170,11 +176,13 @@ def dppo_shapes(mlp_dims, residual, time_dim=16, cond_mlp_dims=None, layernorm=F
         w, blocks = mlp_dims[0], (len(mlp_dims) - 1) // 2
         shapes |= {"mlp_mean.layers.0.weight": (w, dims[0]), "mlp_mean.layers.0.bias": (w,)}
         for k in range(1, blocks + 1):
+            block = f"mlp_mean.layers.{k}"
             for part in ("l1", "l2"):
-                shapes |= {f"mlp_mean.layers.{k}.{part}.weight": (w, w), f"mlp_mean.layers.{k}.{part}.bias": (w,)}
+                shapes |= {f"{block}.{part}.weight": (w, w), f"{block}.{part}.bias": (w,)}
             for part in ("norm1", "norm2") if layernorm else ():
-                shapes |= {f"mlp_mean.layers.{k}.{part}.weight": (w,), f"mlp_mean.layers.{k}.{part}.bias": (w,)}
-        shapes |= {f"mlp_mean.layers.{blocks + 1}.weight": (out, w), f"mlp_mean.layers.{blocks + 1}.bias": (out,)}
+                shapes |= {f"{block}.{part}.weight": (w,), f"{block}.{part}.bias": (w,)}
+        last = f"mlp_mean.layers.{blocks + 1}"
+        shapes |= {f"{last}.weight": (out, w), f"{last}.bias": (out,)}
     else:
         for i in range(len(dims) - 1):
             shapes |= {f"mlp_mean.moduleList.{i}.linear_1.weight": (dims[i + 1], dims[i]),
@@ -186,13 +194,19 @@ def dppo_shapes(mlp_dims, residual, time_dim=16, cond_mlp_dims=None, layernorm=F
 
 
 def dppo_network(seed: int, net=NET_RESIDUAL, **overrides) -> dict[str, torch.Tensor]:
-    """A DiffusionMLP state dict with random weights from `seed` (norm weights near 1)."""
+    """A DiffusionMLP state dict with random weights from `seed` (norm weights near 1). A residual one
+    passes its input chunk through to its output as well, so that epsilon is near x_t, as a trained
+    network's is, and DDIM's clip of x0 binds only now and then."""
     rng = np.random.default_rng(seed)
     state = {}
     for name, shape in dppo_shapes(**net, **overrides).items():
         base = 1.0 if "norm" in name and name.endswith("weight") else 0.0
-        scale = 1 / math.sqrt(shape[-1]) if len(shape) == 2 else 0.1
+        scale = 0.3 / math.sqrt(shape[-1]) if len(shape) == 2 else 0.03
         state[name] = torch.tensor(base + scale * rng.standard_normal(shape), dtype=torch.float32)
+    if net["residual"]:
+        last = (len(net["mlp_dims"]) - 1) // 2 + 1
+        state["mlp_mean.layers.0.weight"][: H * ACT, : H * ACT] += torch.eye(H * ACT)
+        state[f"mlp_mean.layers.{last}.weight"][:, : H * ACT] += torch.eye(H * ACT)
     return state
 
 
@@ -201,7 +215,7 @@ def prefixed(prefix: str, state: dict) -> dict:
 
 
 def pretrained(model: dict, ema: dict | None = None) -> dict:
-    """What DPPO's pre-training saves: the DiffusionModel's state dicts, its network's tensors under network."""
+    """What DPPO's pre-training saves: DiffusionModel's state dicts, the network's tensors under network."""
     return {"epoch": 3000, "model": prefixed("network.", model), "ema": prefixed("network.", ema or model)}
 
 
@@ -307,7 +321,8 @@ def close(actions, reference) -> bool:
 
 def test_the_schedule_is_dppos():
     for steps in (20, 100):
-        assert np.array_equal(dppo.alphas_cumprod(steps).numpy(), dppo_alphas_cumprod(steps).astype(np.float32))
+        assert np.array_equal(dppo.alphas_cumprod(steps).numpy(),
+                              dppo_alphas_cumprod(steps).astype(np.float32))
 
 
 def test_a_pretraining_folder_loads_as_a_policy(tmp_path):
@@ -321,6 +336,18 @@ def test_a_pretraining_folder_loads_as_a_policy(tmp_path):
     assert bundled_task(str(folder)) is None and bundled_task(f"{folder}@8") is None
     obs, noise = inputs(3)
     assert policy.act(obs, noise).shape == (3, H, ACT) and policy.act(obs, noise).dtype == np.float32
+
+
+@pytest.mark.parametrize(("config", "net"), [(PRETRAIN, NET_RESIDUAL), (PLAIN, NET_PLAIN)])
+def test_the_network_is_dppos_diffusion_mlp(tmp_path, config, net):
+    sd = dppo_network(RNG_SEED, net)
+    policy = load_policy(str(dppo_folder(tmp_path / "can", config, pretrained(sd))))
+    network = copy.deepcopy(policy.networks["base"]).double()
+    rng = np.random.default_rng(3)
+    x, cond = rng.standard_normal((6, H, ACT)), rng.uniform(-1, 1, (6, OBS))
+    for t in (0, 7, 19):
+        eps = network(torch.tensor(x), torch.full((6,), float(t), dtype=torch.float64), torch.tensor(cond))
+        assert np.abs(eps.detach().numpy() - reference_eps(sd, x, float(t), cond, **net)).max() < 1e-12
 
 
 @pytest.mark.parametrize("steps", [None, 8, 3, 1])
@@ -375,7 +402,8 @@ def test_actions_are_deterministic_row_independent_and_follow_the_ticket(tmp_pat
     assert np.array_equal(actions, policy.act(obs.copy(), noise.copy()))
     order = np.random.default_rng(2).permutation(37)
     assert np.array_equal(policy.act(obs[order], noise[order]), actions[order])
-    assert all(np.array_equal(policy.act(obs[i : i + 1], noise[i : i + 1]), actions[i : i + 1]) for i in (0, 17, 36))
+    for i in (0, 17, 36):
+        assert np.array_equal(policy.act(obs[i : i + 1], noise[i : i + 1]), actions[i : i + 1])
     ticket = np.broadcast_to(noise[:1], noise.shape)
     other = np.broadcast_to(noise[1:2], noise.shape)
     assert not np.array_equal(policy.act(obs, ticket), policy.act(obs, other))
@@ -385,13 +413,26 @@ def test_pretraining_runs_the_ema_weights_and_dppos_eval_config_the_model_weight
     model, ema = dppo_network(1), dppo_network(2)
     obs, noise = inputs(6)
     expected = {name: reference_actions(sd, obs, noise, T) for name, sd in (("model", model), ("ema", ema))}
+    assert np.abs(expected["model"] - expected["ema"]).max() > 1e-2
     both = pretrained(model, ema)
-    assert close(load_policy(str(dppo_folder(tmp_path / "pre", PRETRAIN, both))).act(obs, noise), expected["ema"])
+    assert close(load_policy(str(dppo_folder(tmp_path / "pre", PRETRAIN, both))).act(obs, noise),
+                 expected["ema"])
     evaluated = load_policy(str(dppo_folder(tmp_path / "eval", EVAL, both))).act(obs, noise)
     assert close(evaluated, expected["model"][:, :3])  # act_steps: 3
     model_only = {"epoch": 10, "model": prefixed("network.", model)}
     assert close(load_policy(str(dppo_folder(tmp_path / "model", PRETRAIN, model_only))).act(obs, noise),
                  expected["model"])
+
+
+def test_a_dsrl_config_runs_dppos_eval_with_ddim(tmp_path):
+    """DSRL's robomimic configs: DPPO's DiffusionEval on a pre-trained checkpoint, use_ddim with 8 steps."""
+    dsrl = EVAL.replace("use_ddim: False", "use_ddim: True").replace(
+        "  use_ddim: ${use_ddim}\n", "  use_ddim: ${use_ddim}\n  ddim_steps: 8\n  controllable_noise: True\n")
+    model, ema = dppo_network(1), dppo_network(2)
+    policy = load_policy(str(dppo_folder(tmp_path / "dsrl", dsrl, pretrained(model, ema))))
+    obs, noise = inputs(6)
+    assert policy.fingerprint().endswith("@8")
+    assert close(policy.act(obs, noise), reference_actions(model, obs, noise, 8, act_steps=3))
 
 
 def test_a_fine_tuned_checkpoint_runs_actor_ft_at_the_fine_tuned_steps(tmp_path):
@@ -421,14 +462,43 @@ def test_an_observation_history_is_flattened_oldest_first(tmp_path):
         policy.act(obs[:, 0], noise)
 
 
+class Drift(gym.Env):
+    """Observes 5 numbers, the first two moved by the actions; ends after 6 steps."""
+
+    observation_space = gym.spaces.Box(-10, 10, (OBS,), dtype=np.float64)
+    action_space = gym.spaces.Box(-5, 5, (ACT,), dtype=np.float64)
+
+    def reset(self, seed=None, options=None):
+        self.state, self.t = np.random.default_rng(seed).uniform(-1, 1, OBS), 0
+        return self.state.copy(), {}
+
+    def step(self, action):
+        self.t += 1
+        self.state[:ACT] += 0.1 * np.asarray(action)
+        return self.state.copy(), 0.0, self.t >= 6, False, {"success": False}
+
+
+@pytest.mark.parametrize("cond_steps", [1, 2])
+def test_rollout_runs_a_dppo_policy_with_its_observation_history(tmp_path, cond_steps):
+    config = PRETRAIN.replace("cond_steps: 1", f"cond_steps: {cond_steps}")
+    sd = dppo_network(RNG_SEED, cond_dim=cond_steps * OBS)
+    policy = load_policy(f"{dppo_folder(tmp_path / 'can', config, pretrained(sd))}@4")
+    ticket = Constant(np.full(policy.noise_shape, 0.5, np.float32))
+    episodes = [Episode(Gaussian(0), 1_000_000), Episode(ticket, 1_000_001), Episode(ticket, 1_000_000)]
+    results = rollout(policy, get_task(Drift), episodes)
+    assert [r.length for r in results] == [6, 6, 6]
+
+
 def test_the_writer_saves_what_dppo_saves(tmp_path):
-    torch.manual_seed(RNG_SEED)
-    network = dppo.DiffusionMLP(dppo.NetworkSpec(action_dim=ACT, horizon_steps=H, cond_dim=OBS, mlp_dims=(32,) * 3,
-                                                 residual_style=True))
+    spec = dppo.NetworkSpec(action_dim=ACT, horizon_steps=H, cond_dim=OBS, mlp_dims=(32,) * 3,
+                            residual_style=True)
+    network = dppo.DiffusionMLP(spec)
+    network.load_state_dict(dppo_network(RNG_SEED))
     path = dppo.save_checkpoint(tmp_path / "out", network, NORMALIZATION, denoising_steps=T, epoch=7)
     saved = torch.load(path, weights_only=True)
     assert path.name == "state_7.pt" and sorted(saved) == ["ema", "epoch", "model"] and saved["epoch"] == 7
-    assert {k: tuple(v.shape) for k, v in saved["ema"].items()} == prefixed("network.", dppo_shapes(**NET_RESIDUAL))
+    shapes = {k: tuple(v.shape) for k, v in saved["ema"].items()}
+    assert shapes == prefixed("network.", dppo_shapes(**NET_RESIDUAL))
     obs, noise = inputs(4)
     sd = {k.removeprefix("network."): v for k, v in saved["ema"].items()}
     assert close(load_policy(str(tmp_path / "out")).act(obs, noise), reference_actions(sd, obs, noise, T))
@@ -459,7 +529,7 @@ BAD = {
     "vision": (_edit("mlp_diffusion.DiffusionMLP", "mlp_diffusion.VisionDiffusionMLP"),
                "model.network._target_ is 'model.diffusion.mlp_diffusion.VisionDiffusionMLP'"),
     "unet": (_edit("mlp_diffusion.DiffusionMLP", "unet.Unet1D"), "not its image or UNet networks"),
-    "sampler": (_edit("model.diffusion.diffusion.DiffusionModel", "model.diffusion.diffusion_idql.IDQLDiffusion"),
+    "sampler": (_edit("diffusion.diffusion.DiffusionModel", "diffusion.diffusion_idql.IDQLDiffusion"),
                 "model._target_ is 'model.diffusion.diffusion_idql.IDQLDiffusion'"),
     "shape": (_edit("mlp_dims: [32, 32, 32]", "mlp_dims: [48, 48, 48]"),
               "tensor network.mlp_mean.layers.0.bias has shape [32]; the config's DiffusionMLP needs [48]"),
@@ -481,7 +551,8 @@ BAD = {
     "steps": (lambda folder: None, "21 DDIM steps, more than the 20 trained timesteps"),
     "two": (lambda folder: (folder / "state_10.pt").write_bytes((folder / "state_3000.pt").read_bytes()),
             "holds 2 checkpoints (state_10.pt, state_3000.pt)"),
-    "torch": (lambda folder: (folder / "state_3000.pt").write_text("not a checkpoint"), "not a torch checkpoint"),
+    "torch": (lambda folder: (folder / "state_3000.pt").write_text("text"),
+              "state_3000.pt: torch.load(weights_only=True) cannot read it"),
 }
 
 

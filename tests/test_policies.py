@@ -59,13 +59,13 @@ def test_every_bundled_policy_loads_runs_and_has_a_model_card(rng):
         policy = load_policy(name)
         assert policy.name == name and (BUNDLED_DIR / name / "MODEL_CARD.md").is_file()
         noise = rng.standard_normal((2, *policy.noise_shape)).astype(np.float32)
-        obs = np.zeros((2, 39), np.float32)
+        obs = np.zeros((2, policy.cfg.obs_dim), np.float32)
         if policy.cfg.image_size:  # an image policy sees a frame and agent_pos
             frames = np.zeros((2, policy.cfg.image_size, policy.cfg.image_size, 3), np.uint8)
             obs = {"pixels": frames, "agent_pos": np.zeros((2, 4), np.float32)}
         for task in policy.tasks or [None]:  # a multi-task policy acts on each of its tasks
             acting = policy if task is None else for_task(policy, task)
-            assert acting.act(obs, noise).shape == (2, policy.n_exec, 4)
+            assert acting.act(obs, noise).shape == (2, policy.n_exec, policy.cfg.action_dim)
 
 
 def test_denoising_steps_set_at_load_time(rng):

@@ -1,4 +1,5 @@
-"""Demonstrations from Meta-World's scripted experts, and deterministic policy training."""
+"""Demonstrations from scripted experts (Meta-World's, robomimic's Lift and Can), and deterministic
+policy training."""
 
 from __future__ import annotations
 
@@ -20,11 +21,12 @@ from goldenticket.policies import mlp
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
 from goldenticket.seeds import seeds_in
 from goldenticket.stats import Rate
-from goldenticket.tasks import MetaWorldTask, get_task
+from goldenticket.tasks import MetaWorldTask, get_task, robomimic_experts
 from goldenticket.tasks.base import stack
 from goldenticket.tasks.metaworld import STATE_DIM
 from goldenticket.tasks.pixels import SIZE as PIXELS
 from goldenticket.tasks.pixels import PixelsTask
+from goldenticket.tasks.robomimic import RobomimicTask
 
 
 @dataclass(frozen=True)
@@ -41,13 +43,11 @@ class DemoStyle:
     action_noise: float = 0.0
     goal_offset: float = 0.0
 
-    def habit_offset(self, rng: np.random.Generator, obs_dim: int) -> np.ndarray:
-        """One demonstrator's constant observation offset (object x, y at 4:6; goal x, y at -3:-1)."""
-        offset = np.zeros(obs_dim)
-        offset[4:6] = rng.uniform(-self.grasp_offset, self.grasp_offset, 2)
-        if self.goal_offset:
-            offset[-3:-1] = rng.uniform(-self.goal_offset, self.goal_offset, 2)
-        return offset
+    def habit(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """One demonstrator's constant (grasp, goal) shifts in x and y."""
+        grasp = rng.uniform(-self.grasp_offset, self.grasp_offset, 2)
+        goal = rng.uniform(-self.goal_offset, self.goal_offset, 2) if self.goal_offset else np.zeros(2)
+        return grasp, goal
 
     def describe(self) -> str:
         aims = [f"the object shifted by U(+-{self.grasp_offset}) m"] if self.grasp_offset else []
@@ -75,22 +75,18 @@ class Demos:
         return merged
 
 
-def collect_demos(task: MetaWorldTask, n: int, style: DemoStyle, seed: int = 0) -> Demos:
+def collect_demos(task: MetaWorldTask | RobomimicTask, n: int, style: DemoStyle, seed: int = 0) -> Demos:
     """`n` successful scripted-expert demonstrations on training seeds."""
-    from metaworld.policies import ENV_POLICY_MAP
-
-    if task.env_name not in ENV_POLICY_MAP:
-        raise UserError(f"no scripted expert for {task.name}")
-    expert, env = ENV_POLICY_MAP[task.env_name](), task.make_env()
+    env = task.make_env()
+    experts = _experts(task, env)
     rng = np.random.default_rng(seed)
     demos = Demos([], [], 0)
     bar = tqdm(total=n, desc="demonstrations", unit="demo")
     for episode_seed in seeds_in("train", 100 * n):
         if len(demos.obs) == n:
             break
-        offset = style.habit_offset(rng, STATE_DIM)  # the expert reads the full state
-        obs_seq, act_seq, success = _expert_episode(expert, env, task, episode_seed, offset,
-                                                    style.action_noise, rng)
+        expert = experts(*style.habit(rng))
+        obs_seq, act_seq, success = _expert_episode(expert, env, task, episode_seed, style.action_noise, rng)
         demos.attempts += 1
         if success:
             demos.obs.append(obs_seq)
@@ -103,12 +99,35 @@ def collect_demos(task: MetaWorldTask, n: int, style: DemoStyle, seed: int = 0) 
     return demos
 
 
-def _expert_episode(expert, env, task, seed, offset, noise, rng):
-    """One episode of the expert, who reads the env's full state whatever the policy will see."""
+Expert = Callable[[np.ndarray], np.ndarray]  # one episode's expert: observation -> action
+
+
+def _experts(task: MetaWorldTask | RobomimicTask, env) -> Callable[[np.ndarray, np.ndarray], Expert]:
+    """The task's scripted expert for a demonstrator's (grasp, goal) shifts. Meta-World's experts
+    read the env's full state, whatever the policy will see, with the shifts added to the object's
+    and the goal's x and y."""
+    if isinstance(task, RobomimicTask):
+        robomimic_experts.check(task.name)
+        return lambda grasp, goal: robomimic_experts.expert(task.name, env, grasp, goal).act
+    from metaworld.policies import ENV_POLICY_MAP
+
+    if task.env_name not in ENV_POLICY_MAP:
+        raise UserError(f"no scripted expert for {task.name}")
+    scripted = ENV_POLICY_MAP[task.env_name]()
+
+    def expert(grasp: np.ndarray, goal: np.ndarray) -> Expert:
+        offset = np.zeros(STATE_DIM)
+        offset[4:6], offset[-3:-1] = grasp, goal
+        return lambda obs: scripted.get_action(env.state.astype(np.float64) + offset)
+
+    return expert
+
+
+def _expert_episode(expert: Expert, env, task, seed, noise, rng):
+    """One episode of the expert, with Gaussian action noise."""
     obs, obs_seq, act_seq, success = env.reset(seed), [], [], False
     for _ in range(task.max_steps):
-        action = expert.get_action(env.state.astype(np.float64) + offset)
-        action = np.clip(action + noise * rng.standard_normal(task.action_dim), -1, 1)
+        action = np.clip(expert(obs) + noise * rng.standard_normal(task.action_dim), -1, 1)
         obs_seq.append(obs)
         act_seq.append(action.astype(np.float32))
         obs, success, _ = env.step(action)
@@ -167,7 +186,7 @@ def _network_inputs(model: Denoiser, obs_np) -> Callable[[torch.Tensor, torch.Ge
     """The network's inputs for a batch of row indices: observations standardised once, or frames
     encoded batch by batch (the encoder learns), each shifted by up to SHIFT pixels."""
     if not isinstance(obs_np, dict):
-        obs = model.normalise_obs(torch.as_tensor(obs_np))
+        obs = model.normalise_obs(torch.as_tensor(obs_np, dtype=torch.float32))  # robosuite's are float64
         return lambda idx, gen: obs[idx]
     pixels, agent_pos = torch.as_tensor(obs_np["pixels"]), torch.as_tensor(obs_np["agent_pos"])
 
@@ -209,9 +228,9 @@ def build_policy(cfg: TrainConfig, out: Path) -> dict:
     cfg.check()
     seeds_in("heldout", cfg.heldout)  # a UserError now, not after training
     task = get_task(cfg.task)
-    if not isinstance(task, MetaWorldTask):
-        raise OptionError(f"train needs a built-in Meta-World task (scripted experts), got {cfg.task!r}",
-                          "task")
+    if not isinstance(task, MetaWorldTask | RobomimicTask):
+        raise OptionError("train needs a built-in task with scripted experts (Meta-World's, "
+                          f"{', '.join(robomimic_experts.EXPERTS)}), got {cfg.task!r}", "task")
     name = f"{cfg.task}/{cfg.kind}"
     style = DemoStyle(cfg.grasp_offset, cfg.action_noise, cfg.goal_offset)
     policy_cfg = PolicyConfig(name, cfg.kind, task.obs_dim, task.action_dim, cfg.horizon, cfg.n_exec,
@@ -276,7 +295,7 @@ def _into_new_folder(out: Path, fill: Callable[[Path], dict], cfg: PolicyConfig)
     return json.loads((out / "card.json").read_text())
 
 
-def measure(policy_dir: Path, task: MetaWorldTask, heldout: int, workers: int = 1) -> dict:
+def measure(policy_dir: Path, task, heldout: int, workers: int = 1) -> dict:
     """Base and zero-ticket success of a saved policy on the first `heldout` held-out seeds."""
     from goldenticket.evaluation import Evaluator, judge
     from goldenticket.noise import Constant

@@ -18,12 +18,12 @@ that samples with DDPM runs DDIM over every trained timestep, and `DIR@N` runs N
 from __future__ import annotations
 
 import ast
+import copy
 import hashlib
 import io
 import json
 import math
 import operator
-import pickle
 import re
 from collections import OrderedDict
 from dataclasses import asdict, dataclass
@@ -189,10 +189,8 @@ class _Yaml:
     """A DPPO config file; `${key}` and `${eval:'arithmetic'}` are resolved in the values read."""
 
     def __init__(self, path: Path):
-        try:
-            import yaml
-        except ImportError:
-            raise UserError(f"{path}: reading a DPPO config needs PyYAML (pip install pyyaml)") from None
+        import yaml
+
         self.path = path
         try:
             self.root = yaml.safe_load(path.read_text())
@@ -395,8 +393,9 @@ def checkpoint_networks(path: Path, cfg: DPPOConfig) -> tuple[DiffusionMLP, Diff
     ones under `actor_ft.`. One-line UserError for a tensor missing or of another shape."""
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as exc:
-        raise UserError(f"{path}: not a torch checkpoint ({str(exc).splitlines()[0]})") from None
+    except Exception as exc:  # torch's unpickler raises several types for a file it cannot read
+        raise UserError(f"{path}: torch.load(weights_only=True) cannot read it ({type(exc).__name__}); "
+                        "DPPO's checkpoints hold only tensors and numbers") from None
     if not isinstance(data, dict):
         raise UserError(f"{path}: not a DPPO checkpoint (a dict holding 'model', and 'ema' when "
                         "pre-training)")
@@ -463,7 +462,7 @@ class DPPOPolicy:
                  normalization: dict[str, np.ndarray], name: str):
         self.cfg, self.name, self.normalization = cfg, name, normalization
         self.networks = {"base": base} | ({"ft": ft} if ft is not None else {})  # float32, as trained
-        self._net64 = {k: _float64_copy(v) for k, v in self.networks.items()}
+        self._net64 = {k: copy.deepcopy(v).double() for k, v in self.networks.items()}
         n = normalization
         self._obs_min = torch.tensor(n["obs_min"], dtype=torch.float64)
         scale = n["obs_max"] - n["obs_min"] + 1e-6  # in the file's dtype, as DPPO's wrappers compute it
@@ -525,12 +524,6 @@ class DPPOPolicy:
         for key, value in self.normalization.items():
             digest.update(key.encode() + np.ascontiguousarray(value).tobytes())
         return f"dppo-{digest.hexdigest()[:16]}@{self.cfg.ddim_steps}"
-
-
-def _float64_copy(network: DiffusionMLP) -> DiffusionMLP:
-    copy = DiffusionMLP(network.spec).double().eval()
-    copy.load_state_dict(network.state_dict())
-    return copy
 
 
 def load(path: str | Path, steps: int | None = None, name: str | None = None) -> DPPOPolicy:

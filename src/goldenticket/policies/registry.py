@@ -23,9 +23,9 @@ BUNDLED_DIR = Path(__file__).parent / "bundled"
 
 
 def policy_names() -> list[str]:
-    return sorted(
-        str(cfg.parent.relative_to(BUNDLED_DIR)) for cfg in BUNDLED_DIR.rglob("config.json")
-    )
+    """The bundled policies' names; a hidden folder (a policy being built) is none."""
+    names = (cfg.parent.relative_to(BUNDLED_DIR) for cfg in BUNDLED_DIR.rglob("config.json"))
+    return sorted(str(name) for name in names if not any(part.startswith(".") for part in name.parts))
 
 
 def bundled_tickets() -> list[Path]:

@@ -15,9 +15,13 @@ gives it a venv of its own).
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import functools
 import io
+import sys
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -27,6 +31,9 @@ from goldenticket.tasks.base import check_repeatable, quiet_robosuite_logs
 
 INSTALL = "pip install -e \".[robomimic]\" in a venv of its own (README, \"robomimic\"), for robosuite 1.5.2"
 ARM_KEYS = ("eef_pos", "eef_quat", "gripper_qpos")
+# robosuite's controller runs numpy's linear algebra, whose OpenBLAS kernels differ per CPU in the
+# last bits; the recorded robomimic numbers come from these cores' kernels (the same episodes)
+REFERENCE_KERNELS = ("Haswell", "Zen")
 
 
 @dataclass(frozen=True)
@@ -72,8 +79,38 @@ class RobomimicTask:
         return RobomimicEnv(self.setup, self.name)
 
     def check(self) -> None:
-        """The same seed and actions must give the same observations (`base.check_repeatable`)."""
+        """The same seed and actions must give the same observations (`base.check_repeatable`); a note
+        where OpenBLAS's kernels are not those of the recorded numbers."""
         check_repeatable(self)
+        note_kernels()
+
+
+@functools.cache
+def note_kernels() -> None:
+    """Say once when numpy's OpenBLAS runs other kernels than the recorded robomimic numbers did."""
+    core = openblas_kernels()
+    if core is not None and core not in REFERENCE_KERNELS:
+        print(f"goldenticket: note: numpy's OpenBLAS runs its {core} kernels here, so robosuite's controller "
+              "differs in the last bits from the recorded robomimic numbers (made with its Haswell kernels); "
+              "to reproduce them exactly, start Python with OPENBLAS_CORETYPE=Haswell (any CPU with AVX2)",
+              file=sys.stderr)
+
+
+def openblas_kernels() -> str | None:
+    """The core whose kernels numpy's OpenBLAS runs, asked of the loaded library (Linux); None where
+    it cannot be found."""
+    try:
+        maps = Path("/proc/self/maps").read_text()
+    except OSError:
+        return None
+    libraries = sorted({line.split()[-1] for line in maps.splitlines() if "openblas" in line.lower()})
+    for library in libraries:
+        for symbol in ("openblas_get_corename64_", "scipy_openblas_get_corename64_", "openblas_get_corename"):
+            function = getattr(ctypes.CDLL(library), symbol, None)
+            if function is not None:
+                function.restype = ctypes.c_char_p
+                return function().decode()
+    return None
 
 
 class RobomimicEnv:
@@ -95,6 +132,11 @@ class RobomimicEnv:
                                    reward_shaping=False, control_freq=20, horizon=10**9,
                                    ignore_done=True, hard_reset=False, seed=0)
         self.task, self._keys = task, [f"robot{i}_{key}" for i in range(setup.arms) for key in ARM_KEYS]
+
+    @property
+    def robosuite_env(self):
+        """robosuite's env inside (scripted experts read its state)."""
+        return self._env
 
     def reset(self, seed: int) -> np.ndarray:
         generator = self._env.rng  # shared by the placement samplers and the robots' initial noise
