@@ -122,3 +122,10 @@ def test_shipped_tickets_name_their_policy_and_their_id_names_them():
     for path, ticket in zip(paths, tickets, strict=True):
         assert path.stem == ticket.id
         assert ticket.metadata["policy_fingerprint"] == load_policy(ticket.metadata["policy"]).fingerprint()
+
+
+def test_observations_of_another_size_are_refused_in_one_line(rng):
+    policy = load_policy("metaworld/reach-v3/flow")
+    noise = rng.standard_normal((2, *policy.noise_shape)).astype(np.float32)
+    with pytest.raises(UserError, match=r"sees state vectors \[B, 39\], got \[2, 19\]"):
+        policy.act(np.zeros((2, 19)), noise)

@@ -204,6 +204,9 @@ class MLPPolicy:
             raise UserError(f"policy {self.name!r} sees state vectors [B, {self.cfg.obs_dim}], got "
                             f"observations with keys {sorted(obs)} (a camera task needs an image policy)")
         obs = float64(obs)
+        if obs.ndim != 2 or obs.shape[1] != self.cfg.obs_dim:
+            raise UserError(f"policy {self.name!r} sees state vectors [B, {self.cfg.obs_dim}], got "
+                            f"{list(obs.shape)}: it was trained on another task's observations")
         if not self.cfg.tasks:
             return obs
         if self.task is None:
