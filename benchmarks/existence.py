@@ -3,6 +3,8 @@
     python benchmarks/existence.py            # every pair, resumable; writes benchmarks/results/
     python benchmarks/existence.py --ship     # also copy golden tickets beside the bundled policies
     python benchmarks/existence.py --plot-only  # redraw existence.png from existence.json
+    robomimic-venv/bin/python benchmarks/existence.py --robomimic [--ship]  # robomimic's pairs
+
 
 One pair is a bundled policy on its task: flow (10 Euler steps), DDIM with 8 steps and DDIM
 with 2 steps (same weights). Each pair runs `find_golden_tickets` with the settings below into
@@ -10,7 +12,9 @@ with 2 steps (same weights). Each pair runs `find_golden_tickets` with the setti
 numbers. The search's top tickets are judged on held-out seeds against the base policy and the
 zero ticket; the best one is then judged again, with base and zero ticket, on two ranges of fresh
 held-out seeds that no choice saw. Every pair's best ticket, golden or not, is kept in
-benchmarks/results/existence_tickets/ with its verdicts. Results: benchmarks/results/existence.{md,json,png}.
+benchmarks/results/existence_tickets/ with its verdicts. Results: benchmarks/results/existence.{md,json,png};
+with `--robomimic`, the bundled robomimic policies' pairs beside the paper's robomimic rows:
+benchmarks/results/robomimic_existence.{md,json,png}.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from build_zoo import MT10
+from build_zoo import MT10, ROBOMIMIC
 from results_files import RESULTS, write_results
 
 from goldenticket.config import EvaluateConfig, SearchConfig
@@ -44,10 +48,32 @@ SETTINGS = {name: getattr(DEFAULTS, name) for name in ("method", "budget", "seed
 FRESH = 200  # fresh held-out seeds for each pair's best ticket, in two ranges after the judged ones
 FRESH_RANGES = ("fresh", "fresh_2")
 WEAK_BASE = 0.85  # the generalisation targets are over the pairs whose base succeeds at most this often
+# the paper's robomimic rows (DPPO's policies; random search, 5000 tickets x 100 envs): base, golden
+PAPER_ROBOMIMIC = {"lift": (0.784, 0.962), "can": (0.428, 0.808), "square": (0.522, 0.329),
+                   "transport": (0.107, 0.188)}
 
 
 def pairs(tasks=MT10) -> list[tuple[str, str]]:
     return [(f"metaworld/{t}", f"metaworld/{t}/{p}") for t in tasks for p in POLICIES]
+
+
+def robomimic_pairs() -> list[tuple[str, str]]:
+    """The bundled robomimic policies on their tasks, as `pairs` gives Meta-World's."""
+    return [(t, f"{t}/{p}") for t in ROBOMIMIC for p in POLICIES
+            if (BUNDLED_DIR / t / split_steps(p)[0]).is_dir()]
+
+
+def paper_lines(rows: list[dict]) -> list[str]:
+    """The paper's robomimic rows beside this run's best ticket per task (on its first fresh range)."""
+    lines = ["", "| task | paper: base | paper: golden | here: base | here: best ticket (fresh seeds) |",
+             "|---|---|---|---|---|"]
+    for task, (base, golden) in PAPER_ROBOMIMIC.items():
+        mine = [r for r in rows if r["task"] == f"robomimic/{task}"]
+        best = max(mine, key=lambda r: r["fresh"]["success_rate"], default=None)
+        here = (f"{best['fresh']['base']['success_rate']:.1%} | {best['fresh']['success_rate']:.1%} "
+                f"({best['policy']})") if best else "- | - (no bundled policy)"
+        lines.append(f"| {task} | {base:.1%} | {golden:.1%} | {here} |")
+    return lines
 
 
 def run_folder(runs: Path, policy: str) -> Path:
@@ -311,6 +337,8 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", choices=MT10, default=list(MT10), help="tasks")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--ship", action="store_true", help="copy golden tickets into the package")
+    parser.add_argument("--robomimic", action="store_true",
+                        help="the bundled robomimic policies' pairs (in robosuite's venv)")
     parser.add_argument("--plot-only", action="store_true",
                         help="redraw existence.png from the committed existence.json; run no episode")
     args = parser.parse_args()
@@ -318,13 +346,15 @@ def main() -> None:
         save_figure(json.loads((RESULTS / "existence.json").read_text())["pairs"], RESULTS / "existence.png")
         return
     start, summaries = time.perf_counter(), []
-    todo = pairs(args.only)
+    todo = robomimic_pairs() if args.robomimic else pairs(args.only)
     for i, (task, policy) in enumerate(todo, 1):
         print(f"[{i}/{len(todo)}] {policy}", flush=True)
         summaries.append(run_pair(task, policy, args.runs, args.workers))
     rows = [table_row(s) for s in summaries]
     summary = summary_rows(rows)
     wall = time.perf_counter() - start
+    if args.robomimic:
+        return write_robomimic(summaries, rows, summary, wall, args.ship)
     if args.only != list(MT10):  # a partial table never overwrites the committed results
         print(markdown(rows, summary, wall))
         return
@@ -333,6 +363,19 @@ def main() -> None:
     keep_best_tickets(summaries, RESULTS / "existence_tickets")
     write_results("existence", record, markdown(rows, summary, wall), lambda path: save_figure(rows, path))
     if args.ship:
+        print(f"Shipped {ship(summaries)} golden tickets into {BUNDLED_DIR}.")
+
+
+def write_robomimic(summaries: list[dict], rows: list[dict], summary: dict, wall: float,
+                    ship_them: bool) -> None:
+    """The robomimic table, the paper's rows beside it, and each pair's best ticket; `ship_them`: the
+    golden ones into the package too."""
+    record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
+              "paper": PAPER_ROBOMIMIC, "wall_time_s": round(wall)}
+    table = markdown(rows, summary, wall) + "\n".join(paper_lines(rows)) + "\n"
+    keep_best_tickets(summaries, RESULTS / "robomimic_existence_tickets")
+    write_results("robomimic_existence", record, table, lambda path: save_figure(rows, path))
+    if ship_them:
         print(f"Shipped {ship(summaries)} golden tickets into {BUNDLED_DIR}.")
 
 

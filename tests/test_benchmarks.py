@@ -276,3 +276,11 @@ def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, m
     assert {p.name for p in folder.glob("*-20.json")} == {f"{m}-20.json" for m in dsrl.SEARCHES}
     said = capsys.readouterr().out
     assert "| reach-v3 | " in said and f"and DSRL-NA {minutes / 2:g} min" in said
+
+
+def test_robomimic_pairs_and_the_papers_rows_beside_them():
+    assert ("robomimic/lift", "robomimic/lift/ddim@8") in existence.robomimic_pairs()
+    fresh = {"success_rate": 0.9, "base": {"success_rate": 0.5}}
+    lines = existence.paper_lines([{"task": "robomimic/lift", "policy": "ddim@8", "fresh": fresh}])
+    assert "| lift | 78.4% | 96.2% | 50.0% | 90.0% (ddim@8) |" in lines
+    assert "| square | 52.2% | 32.9% | - | - (no bundled policy) |" in lines
