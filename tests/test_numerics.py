@@ -16,7 +16,7 @@ import pytest
 
 pytestmark = pytest.mark.slow
 
-EPISODES = """
+RECORDER = """
 import hashlib, json
 import numpy as np
 from goldenticket.noise import Constant, Gaussian
@@ -25,7 +25,7 @@ from goldenticket.rollout import Episode, rollout
 from goldenticket.tasks import get_task, seeds_in
 
 
-class Recorded:
+class Recorded:  # a policy whose observations and actions feed one digest
     def __init__(self, policy):
         self.policy, self.digest = policy, hashlib.sha256()
         self.noise_shape, self.n_exec = policy.noise_shape, policy.n_exec
@@ -34,7 +34,8 @@ class Recorded:
         frames = [obs[key] for key in sorted(obs)] if isinstance(obs, dict) else [obs]
         self.digest.update(b"".join(np.ascontiguousarray(f).tobytes() for f in frames) + actions.tobytes())
         return actions
-
+"""
+EPISODES = RECORDER + """
 out = {}
 for name, task in [("metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"),
                    ("metaworld/reach-v3/ddim@2", "metaworld/reach-v3"),

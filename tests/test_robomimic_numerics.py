@@ -10,29 +10,13 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+from test_numerics import RECORDER
 from test_robomimic import robosuite_version
 
 pytestmark = [pytest.mark.robomimic, pytest.mark.slow, pytest.mark.skipif(
     robosuite_version() != "1.5.2", reason="robosuite 1.5.2 is not installed (its own venv: README)")]
 
-EPISODES = """
-import hashlib, json
-import numpy as np
-from goldenticket.noise import Constant, Gaussian
-from goldenticket.policies import load_policy
-from goldenticket.rollout import Episode, rollout
-from goldenticket.tasks import get_task, seeds_in
-
-
-class Recorded:
-    def __init__(self, policy):
-        self.policy, self.digest = policy, hashlib.sha256()
-        self.noise_shape, self.n_exec = policy.noise_shape, policy.n_exec
-    def act(self, obs, noise):
-        actions = self.policy.act(obs, noise)
-        self.digest.update(np.ascontiguousarray(obs).tobytes() + actions.tobytes())
-        return actions
-
+EPISODES = RECORDER + """
 policy = Recorded(load_policy("robomimic/lift/ddim"))
 seeds = seeds_in("heldout", 4)
 ticket = Constant(np.full(policy.noise_shape, 0.3, np.float32))
