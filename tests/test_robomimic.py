@@ -3,6 +3,7 @@ the venv with the `robomimic` extra (README, "robomimic") and are skipped withou
 
 import importlib.metadata
 import importlib.util
+import json
 import time
 
 import numpy as np
@@ -63,3 +64,71 @@ def test_a_lifted_cube_is_a_success():
     sim.forward()
     assert sim.data.body_xpos[cube][2] > env._env.model.mujoco_arena.table_offset[2] + 0.04
     assert env.step(np.zeros(7))[1]
+
+
+@pytest.fixture
+def unchecked(monkeypatch):
+    """CLI runs without the task's repeatability check (it builds envs here and in a second process,
+    seconds a run); test_every_seed_is_one_initial_state_in_any_env_and_process runs it."""
+    from goldenticket.tasks.robomimic import RobomimicTask
+
+    monkeypatch.setattr(RobomimicTask, "check", lambda self: None)
+
+
+def test_a_dppo_checkpoint_trained_on_lift_demonstrations_is_searched_alike_by_1_and_2_workers(tmp_path,
+                                                                                               unchecked):
+    """DPPO's pre-training as benchmarks/dppo_robomimic.py runs it, a few steps on two scripted Lift
+    demonstrations, written in DPPO's format and searched through the CLI."""
+    import dppo_robomimic as bench
+    import torch
+
+    from goldenticket.cli import main
+    from goldenticket.policies.dppo import save_checkpoint
+    from goldenticket.train import DemoStyle, collect_demos
+
+    demos = collect_demos(get_task("robomimic/lift"), 2, DemoStyle(), seed=0)
+    norm = bench.normalization(demos)
+    pairs = bench.dataset(demos, norm)
+    network, ema, losses, epochs = bench.train(*pairs, steps=3, seed=0)
+    again = bench.train(*pairs, steps=3, seed=0)[0].state_dict()
+    assert len(losses) == 1 and all(torch.equal(v, again[k]) for k, v in network.state_dict().items())
+    folder = tmp_path / "dppo"
+    save_checkpoint(folder, network, norm, denoising_steps=bench.DENOISING_STEPS, act_steps=bench.ACT_STEPS,
+                    epoch=epochs, ema=ema)
+    runs = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"run-{workers}"
+        assert main(["search", "--policy", f"{folder}@4", "--task", "robomimic/lift", "--max-steps", "8",
+                     "--method", "rs", "--budget", "2", "--search-seeds", "1", "--validation-seeds", "0",
+                     "--heldout", "2", "--top-k", "1", "--workers", workers, "--out", str(out)]) == 0
+        runs.append(json.loads((out / "summary.json").read_text().replace(str(out), "OUT")))
+    assert runs[0]["base"]["n"] == 2 and runs[0]["tickets"]
+    for key in ("base", "zero", "tickets", "validation_scores"):
+        assert runs[0].get(key) == runs[1].get(key)
+
+
+def dppo_for_10_observations(folder) -> str:
+    """An untrained DPPO checkpoint for 10 observations, in DPPO's format."""
+    import torch
+
+    from goldenticket.policies.dppo import DiffusionMLP, NetworkSpec, save_checkpoint
+
+    torch.manual_seed(0)
+    network = DiffusionMLP(NetworkSpec(action_dim=7, horizon_steps=4, cond_dim=10, mlp_dims=(8,)))
+    norm = {"obs_min": np.zeros(10), "obs_max": np.ones(10), "action_min": -np.ones(7),
+            "action_max": np.ones(7)}
+    save_checkpoint(folder, network, norm, denoising_steps=20)
+    return str(folder)
+
+
+@pytest.mark.parametrize("policy", ["dppo", "metaworld/reach-v3/flow"])
+def test_a_policy_for_another_observation_size_is_one_line(tmp_path, capsys, unchecked, policy):
+    from goldenticket.cli import main
+
+    name = dppo_for_10_observations(tmp_path / "dppo") if policy == "dppo" else policy
+    assert main(["evaluate", "--policy", name, "--task", "robomimic/lift", "--max-steps", "2",
+                 "--seeds", "1000000:1000001", "--workers", "1"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(errors) == 1 and "19" in errors[0]
+    if policy == "dppo":
+        assert "sees DPPO's low-dim state [B, 10], got [2, 19]" in errors[0]
