@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 
 from existence import FRESH_RANGES, HERE, SETTINGS, WEAK_BASE, run_folder, run_pair, table_row, target_summary
 from results_files import RESULTS, write_results
@@ -83,11 +82,9 @@ def budget_rows(budget: int, search: dict, workers: int) -> list[dict]:
         path = run_folder(ROWS / name, policy).with_suffix(".json")
         if not path.exists():
             print(f"[budget {budget}, {search_label(search)}, {i}/{len(todo)}] {policy}", flush=True)
-            start = time.perf_counter()
             summary = run_pair(task, policy, HERE / "runs" / f"budget-{name}", workers, budget=budget,
                                **search)
-            wall = {"wall_time_s": round(time.perf_counter() - start)}
-            write_atomic(path, json.dumps(table_row(summary) | wall, indent=2) + "\n")
+            write_atomic(path, json.dumps(table_row(summary), indent=2) + "\n")
         rows.append(json.loads(path.read_text()))
     return rows
 

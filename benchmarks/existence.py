@@ -3,7 +3,7 @@
     python benchmarks/existence.py            # every pair, resumable; writes benchmarks/results/
     python benchmarks/existence.py --ship     # also copy golden tickets beside the bundled policies
     python benchmarks/existence.py --plot-only  # redraw existence.png from existence.json
-    robomimic-venv/bin/python benchmarks/existence.py --robomimic [--ship]  # robomimic's pairs
+    robomimic-venv/bin/python benchmarks/existence.py --robomimic [lift can] [--ship]  # robomimic's pairs
 
 
 One pair is a bundled policy on its task: flow (10 Euler steps), DDIM with 8 steps and DDIM
@@ -14,7 +14,8 @@ zero ticket; the best one is then judged again, with base and zero ticket, on tw
 held-out seeds that no choice saw. Every pair's best ticket, golden or not, is kept in
 benchmarks/results/existence_tickets/ with its verdicts. Results: benchmarks/results/existence.{md,json,png};
 with `--robomimic`, the bundled robomimic policies' pairs beside the paper's robomimic rows:
-benchmarks/results/robomimic_existence.{md,json,png}.
+benchmarks/results/robomimic_existence.{md,json,png}, rewritten as each pair ends, keeping the rows of
+the pairs not run (a robomimic pair takes one to two hours on 2 cores).
 """
 
 from __future__ import annotations
@@ -57,9 +58,9 @@ def pairs(tasks=MT10) -> list[tuple[str, str]]:
     return [(f"metaworld/{t}", f"metaworld/{t}/{p}") for t in tasks for p in POLICIES]
 
 
-def robomimic_pairs() -> list[tuple[str, str]]:
-    """The bundled robomimic policies on their tasks, as `pairs` gives Meta-World's."""
-    return [(t, f"{t}/{p}") for t in ROBOMIMIC for p in POLICIES
+def robomimic_pairs(tasks=ROBOMIMIC) -> list[tuple[str, str]]:
+    """The bundled robomimic policies on `tasks`, as `pairs` gives Meta-World's."""
+    return [(t, f"{t}/{p}") for t in tasks for p in POLICIES
             if (BUNDLED_DIR / t / split_steps(p)[0]).is_dir()]
 
 
@@ -83,7 +84,7 @@ def run_folder(runs: Path, policy: str) -> Path:
 def run_pair(task: str, policy: str, runs: Path, workers: int, **changed) -> dict:
     """Search and judge one pair with SETTINGS, or with the `changed` ones (e.g. a budget); its best
     ticket is then re-judged on fresh held-out seeds."""
-    out = run_folder(runs, policy)
+    out, start = run_folder(runs, policy), time.perf_counter()
     cfg = SearchConfig(policy, task, workers=workers, **SETTINGS | changed)
     summary = find_golden_tickets(cfg, out).to_dict()
     with RunStore(out / "run.sqlite") as store:
@@ -91,7 +92,7 @@ def run_pair(task: str, policy: str, runs: Path, workers: int, **changed) -> dic
     best = summary["best"]
     for i, key in enumerate(FRESH_RANGES):
         best[key] = fresh_check(Path(best["ticket_path"]), policy, task, out, workers, i)
-    return summary
+    return summary | {"wall_time_s": round(time.perf_counter() - start)}
 
 
 def fresh_check(path: Path, policy: str, task: str, out: Path, workers: int, i: int = 0) -> dict:
@@ -127,7 +128,7 @@ def table_row(s: dict) -> dict:
             "golden": best["golden"]} | {key: best[key] for key in FRESH_RANGES} | {
             "search": f"{s['method']}, {s['search_episodes']} episodes",
             "search_and_validation": s["search_episodes"] + s["validation_episodes"],
-            "stopped_because": s["stopped_because"]}
+            "stopped_because": s["stopped_because"], "wall_time_s": s["wall_time_s"]}
 
 
 def summary_rows(rows: list[dict]) -> dict:
@@ -302,14 +303,14 @@ def save_figure(rows: list[dict], path: Path) -> None:
 
 def keep_best_tickets(summaries: list[dict], folder: Path) -> None:
     """Every pair's best ticket, golden or not (its metadata says), with its fresh check, in
-    `folder/<policy>/`: anyone can judge all pairs again on other seeds."""
-    for old in folder.rglob("*.safetensors"):
-        old.unlink()
+    `folder/<policy>/` (replacing the ticket there): anyone can judge all pairs again on other seeds."""
     for s in summaries:
+        kept = folder / s["policy"].removeprefix("metaworld/").replace("/", "_").replace("@", "_at")
+        for old in kept.glob("*.safetensors"):
+            old.unlink()
         ticket = Ticket.load(s["best"]["ticket_path"])
         ticket = ticket.with_record(extra=ticket.record.extra | {"fresh": s["best"]["fresh"]})
-        ticket.save(folder / s["policy"].removeprefix("metaworld/").replace("/", "_").replace("@", "_at")
-                    / f"{ticket.id}.safetensors")
+        ticket.save(kept / f"{ticket.id}.safetensors")
 
 
 def ship(summaries: list[dict]) -> int:
@@ -337,8 +338,10 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", choices=MT10, default=list(MT10), help="tasks")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--ship", action="store_true", help="copy golden tickets into the package")
-    parser.add_argument("--robomimic", action="store_true",
-                        help="the bundled robomimic policies' pairs (in robosuite's venv)")
+    parser.add_argument("--robomimic", nargs="*", default=None, metavar="TASK",
+                        choices=[t.removeprefix("robomimic/") for t in ROBOMIMIC],
+                        help="the bundled robomimic policies' pairs, on these tasks (default: all), in "
+                             "robosuite's venv; the table keeps the other tasks' committed rows")
     parser.add_argument("--plot-only", action="store_true",
                         help="redraw existence.png from the committed existence.json; run no episode")
     args = parser.parse_args()
@@ -346,15 +349,19 @@ def main() -> None:
         save_figure(json.loads((RESULTS / "existence.json").read_text())["pairs"], RESULTS / "existence.png")
         return
     start, summaries = time.perf_counter(), []
-    todo = robomimic_pairs() if args.robomimic else pairs(args.only)
+    robomimic = args.robomimic is not None
+    todo = robomimic_pairs([f"robomimic/{t}" for t in args.robomimic or ROBOMIMIC]) if robomimic else \
+        pairs(args.only)
     for i, (task, policy) in enumerate(todo, 1):
         print(f"[{i}/{len(todo)}] {policy}", flush=True)
         summaries.append(run_pair(task, policy, args.runs, args.workers))
+        if robomimic:  # a robomimic pair takes an hour or more: the table gains each as it ends
+            write_robomimic(summaries[-1:], [table_row(summaries[-1])], args.ship)
+    if robomimic:
+        return
     rows = [table_row(s) for s in summaries]
     summary = summary_rows(rows)
     wall = time.perf_counter() - start
-    if args.robomimic:
-        return write_robomimic(summaries, rows, summary, wall, args.ship)
     if args.only != list(MT10):  # a partial table never overwrites the committed results
         print(markdown(rows, summary, wall))
         return
@@ -366,18 +373,29 @@ def main() -> None:
         print(f"Shipped {ship(summaries)} golden tickets into {BUNDLED_DIR}.")
 
 
-def write_robomimic(summaries: list[dict], rows: list[dict], summary: dict, wall: float,
-                    ship_them: bool) -> None:
-    """The robomimic table, the paper's rows beside it, and each pair's best ticket; `ship_them`: the
-    golden ones into the package too."""
+def write_robomimic(summaries: list[dict], rows: list[dict], ship_them: bool) -> None:
+    """The robomimic table with these pairs and the committed rows of the others, the paper's rows
+    beside it, and each pair's best ticket; `ship_them`: the golden ones into the package too."""
+    path, ran = RESULTS / "robomimic_existence.json", {(r["task"], r["policy"]) for r in rows}
+    committed = json.loads(path.read_text())["pairs"] if path.exists() else []
+    order = [(t, p.rsplit("/", 1)[1]) for t, p in robomimic_pairs()]
+    rows = sorted([r for r in committed if (r["task"], r["policy"]) not in ran] + rows,
+                  key=lambda r: order.index((r["task"], r["policy"])))
+    summary, wall = summary_rows(rows), sum(r["wall_time_s"] for r in rows)
     record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
-              "paper": PAPER_ROBOMIMIC, "wall_time_s": round(wall)}
-    table = markdown(rows, summary, wall) + "\n".join(paper_lines(rows)) + "\n"
+              "paper": PAPER_ROBOMIMIC, "wall_time_s": wall}
+    table = markdown(rows, summary, wall) + "\n".join(paper_lines(rows) + wall_lines(rows)) + "\n"
     keep_best_tickets(summaries, RESULTS / "robomimic_existence_tickets")
     write_results("robomimic_existence", record, table, lambda path: save_figure(rows, path))
     if ship_them:
         print(f"Shipped {ship(summaries)} golden tickets into {BUNDLED_DIR}.")
 
+
+def wall_lines(rows: list[dict]) -> list[str]:
+    """Each pair's wall time: the table's pairs may come from several runs."""
+    return ["", "Wall time per pair (search, validation, held-out and both fresh ranges; 2 workers): " +
+            ", ".join(f"{r['task'].removeprefix('robomimic/')} {r['policy']} {r['wall_time_s'] / 60:.0f} min"
+                      for r in rows) + "."]
 
 if __name__ == "__main__":
     main()

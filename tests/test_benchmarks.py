@@ -284,3 +284,25 @@ def test_robomimic_pairs_and_the_papers_rows_beside_them():
     lines = existence.paper_lines([{"task": "robomimic/lift", "policy": "ddim@8", "fresh": fresh}])
     assert "| lift | 78.4% | 96.2% | 50.0% | 90.0% (ddim@8) |" in lines
     assert "| square | 52.2% | 32.9% | - | - (no bundled policy) |" in lines
+
+
+def test_a_robomimic_run_replaces_its_pairs_rows_and_keeps_the_others(tmp_path, monkeypatch):
+    import results_files
+
+    for module in (existence, results_files):
+        monkeypatch.setattr(module, "RESULTS", tmp_path)
+    monkeypatch.setattr(existence, "keep_best_tickets", lambda summaries, folder: None)
+    order = [("robomimic/lift", "robomimic/lift/flow"), ("robomimic/can", "robomimic/can/flow")]
+    monkeypatch.setattr(existence, "robomimic_pairs", lambda tasks=None: order)
+
+    def row(task, best):
+        return _row(0.5, 0.5, best, 0.01, 0.5) | {"task": task, "wall_time_s": 600}
+
+    existence.write_robomimic([], [row("robomimic/can", 0.6)], ship_them=False)
+    existence.write_robomimic([], [row("robomimic/lift", 0.7)], ship_them=False)
+    existence.write_robomimic([], [row("robomimic/lift", 0.8)], ship_them=False)
+    record = json.loads((tmp_path / "robomimic_existence.json").read_text())
+    assert [(r["task"], r["best"]["success_rate"]) for r in record["pairs"]] == [
+        ("robomimic/lift", 0.8), ("robomimic/can", 0.6)]
+    assert record["wall_time_s"] == 1200
+    assert "lift flow 10 min, can flow 10 min." in (tmp_path / "robomimic_existence.md").read_text()
