@@ -40,7 +40,8 @@ def option(default=MISSING, help: str = "", **cli) -> field:
 
 POLICY_HELP = ("bundled policy name (see `goldenticket policies`) or a folder written by `train` (append "
                "@N to run N denoising steps), or package.module:factory returning a NoisePolicy")
-TASK_HELP = "task name, e.g. metaworld/pick-place-v3, or package.module:factory returning a gymnasium.Env"
+TASK_HELP = ("task name, e.g. metaworld/pick-place-v3, robomimic/lift, libero/object/0 or pusht (the docs' "
+             "task list), or package.module:factory returning a gymnasium.Env")
 SUCCESS_HELP = ("Gymnasium tasks: package.module:function(obs, info) -> bool deciding success "
                 "(default: info['success'] or info['is_success'])")
 
@@ -133,6 +134,30 @@ class CMAESSettings:
     mean: tuple[tuple[float, ...], ...] | None = option(None, "start ticket, rows of the searched shape "
                                                         "(default: w = 0)")
     iterations: int | None = option(None, "generations (default: until the budget is spent)")
+
+
+@dataclass(frozen=True)
+class ModelBasedSettings:
+    """Model-based search through an Optuna sampler, each searched number in [-bound, bound]."""
+
+    batch_size: int = option(4, "tickets per ask (the sampler treats the unscored ones as pending)")
+    startup: int = option(10, "random tickets before the model proposes")
+    bound: float = option(3.0, "each searched number lies in [-bound, bound]")
+    start_at_zero: bool = option(True, "score w = 0 first")
+    num_tickets: int | None = option(None, "tickets in all (default: until the budget is spent)")
+
+
+@method("tpe")
+@dataclass(frozen=True)
+class TPESettings(ModelBasedSettings):
+    """The tree-structured Parzen estimator (Optuna's multivariate TPESampler, constant liar)."""
+
+
+@method("gp")
+@dataclass(frozen=True)
+class GPSettings(ModelBasedSettings):
+    """Bayesian optimisation with a Gaussian process (Optuna's GPSampler: a Matern-5/2 kernel with
+    learned noise, log expected improvement)."""
 
 
 @dataclass(frozen=True, kw_only=True)

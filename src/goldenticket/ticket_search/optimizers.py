@@ -22,7 +22,10 @@ from goldenticket.config import (
     CEMRacingSettings,
     CEMSettings,
     CMAESSettings,
+    GPSettings,
+    ModelBasedSettings,
     RandomSearchSettings,
+    TPESettings,
     ZerothOrderSettings,
     method_settings,
 )
@@ -360,6 +363,72 @@ class CMAES(_Base):
             np.random.set_state(theirs)
 
 
+class _ModelBased(_Base):
+    """Model-based search through an Optuna sampler over the searched array: `batch_size` tickets
+    per ask, each on every search seed, scored by mean return; every number in [-bound, bound]; the
+    first ticket is w = 0 if `start_at_zero`. The study lives in memory and its sampler is seeded
+    from `rng` (Optuna's samplers keep their own random state). Runs until `num_tickets` have been
+    asked for (None: until the driver stops it)."""
+
+    settings_class: type[ModelBasedSettings]
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: ModelBasedSettings | None = None, **params):
+        import optuna
+
+        super().__init__(noise_shape, seeds, rng)
+        s = _settings(self.settings_class, settings, params)
+        _require(s.batch_size >= 1, f"batch_size must be >= 1, got {s.batch_size}")
+        _require(s.startup >= 1, f"startup must be >= 1, got {s.startup}")
+        _require(s.bound > 0, f"bound must be > 0, got {s.bound}")
+        _require(s.num_tickets is None or s.num_tickets >= 1,
+                 f"num_tickets must be >= 1, got {s.num_tickets}")
+        self.settings, self.asked, self._trials = s, 0, []
+        optuna.logging.set_verbosity(optuna.logging.WARNING)  # no line per scored ticket
+        self._names = [f"w{i}" for i in range(math.prod(self.noise_shape))]
+        within = optuna.distributions.FloatDistribution(-s.bound, s.bound)
+        self._space = dict.fromkeys(self._names, within)
+        sampler = self._sampler(optuna, int(rng.integers(2**31)))
+        self._study = optuna.create_study(direction="maximize", sampler=sampler)
+        if s.start_at_zero:
+            self._study.enqueue_trial(dict.fromkeys(self._names, 0.0))
+
+    def _sampler(self, optuna, seed: int):
+        raise NotImplementedError
+
+    def ask(self) -> list[Query]:
+        num = self.settings.num_tickets
+        n = min(self.settings.batch_size, self.settings.batch_size if num is None else num - self.asked)
+        self.asked += n
+        self._trials = [self._study.ask(self._space) for _ in range(n)]
+        return self._queries(np.reshape([t.params[name] for name in self._names], self.noise_shape)
+                             for t in self._trials)
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        for trial, r in zip(self._trials, returns, strict=True):
+            self._study.tell(trial, float(np.mean(r)))
+
+
+class TPE(_ModelBased):
+    """The tree-structured Parzen estimator: Optuna's multivariate TPESampler, whose pending tickets
+    count as the worst score so far (constant liar)."""
+
+    settings_class = TPESettings
+
+    def _sampler(self, optuna, seed: int):
+        return optuna.samplers.TPESampler(seed=seed, n_startup_trials=self.settings.startup,
+                                          multivariate=True, constant_liar=True)
+
+
+class GaussianProcess(_ModelBased):
+    """Bayesian optimisation with a Gaussian process: Optuna's GPSampler."""
+
+    settings_class = GPSettings
+
+    def _sampler(self, optuna, seed: int):
+        return optuna.samplers.GPSampler(seed=seed, n_startup_trials=self.settings.startup)
+
+
 OPTIMIZERS: dict[str, type] = {
     "rs": RandomSearch,
     "cem": CEM,
@@ -367,6 +436,8 @@ OPTIMIZERS: dict[str, type] = {
     "cem-racing": CEMRacing,
     "cem-bounds": CEMBounds,
     "cma-es": CMAES,
+    "tpe": TPE,
+    "gp": GaussianProcess,
 }
 
 
