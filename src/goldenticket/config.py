@@ -226,6 +226,10 @@ class SearchConfig(EngineOptions):
     stop_after_perfect: int | None = option(3, "stop once this many tickets succeed on every search seed "
                                             "(0 or None: never)")
     max_tickets: int | None = option(None, "stop after this many distinct tickets (default: no cap)")
+    race: float | None = option(None, "race every ticket against the best so far on blocks of 5 search "
+                                "seeds: it stops where a one-sided sign test on the seeds both ran says it "
+                                "is worse at p < RACE, e.g. 0.1 (not with cem-racing or cem-bounds, which "
+                                "race their own way; default: every ticket runs on every search seed)")
     max_steps: int | None = option(None, "episode step limit (default: the task's, 150 for Meta-World)")
     success: str | Callable | None = option(None, SUCCESS_HELP)
     subspace: str = option("tiled", "what the search varies: tiled (one action-sized vector repeated over "
@@ -281,12 +285,22 @@ class SearchConfig(EngineOptions):
                 raise OptionError(f"unknown {name} {getattr(self, name)!r}; choose from "
                                   f"{list(OBJECTIVES)}", name)
         self.settings()
+        self._check_race()
         if self.tickets and not self.validation():
             raise OptionError("tickets: a given ticket runs on the validation seeds beside the search's "
                               "best, so it needs validation_seeds > 0", "tickets", "validation_seeds")
         self._check_tasks()
         self._check_front()
         check_sinks(self.log)
+
+    def _check_race(self) -> None:
+        if self.race is None:
+            return
+        if not 0 < self.race < 1:
+            raise OptionError(f"race must be a level in (0, 1), e.g. 0.1, got {self.race}", "race")
+        if self.method in ("cem-racing", "cem-bounds"):
+            raise OptionError(f"{self.method} races its own populations; race is for the other methods",
+                              "race", "method")
 
     def _check_tasks(self) -> None:
         if len(self.tasks) > 1:

@@ -19,6 +19,7 @@ from goldenticket.ticket_search.optimizers import (
     ZerothOrder,
     make_optimizer,
 )
+from goldenticket.ticket_search.racing import RACE_BLOCK, Raced
 
 __all__ = [
     "CEM",
@@ -29,6 +30,8 @@ __all__ = [
     "EpisodeOutcome",
     "Optimizer",
     "Query",
+    "RACE_BLOCK",
+    "Raced",
     "RandomSearch",
     "SearchResult",
     "ZerothOrder",

@@ -1,0 +1,81 @@
+"""Racing across a whole search (ticket_search.racing): tickets stop where a paired sign test on
+the seeds they share with the incumbent says they are worse."""
+
+import numpy as np
+import pytest
+
+from goldenticket.config import SearchConfig
+from goldenticket.errors import OptionError, UserError
+from goldenticket.ticket_search import EpisodeOutcome, Query, Raced, make_optimizer, run_search
+
+SEEDS = tuple(range(100, 120))
+
+
+class Scripted:
+    """An optimizer asking the given batches of (1, 1) tickets in turn, recording what it is told."""
+
+    def __init__(self, *batches):
+        self.seeds, self.batches, self.told = SEEDS, list(batches), []
+
+    def ask(self) -> list[Query]:
+        return [Query(np.full((1, 1), t), self.seeds) for t in self.batches.pop(0)] if self.batches else []
+
+    def tell(self, queries, returns) -> None:
+        self.told.append({round(float(q.ticket[0, 0]), 3): r for q, r in zip(queries, returns, strict=True)})
+
+
+def succeeds_with_probability_ticket(queries: list[Query]) -> list[EpisodeOutcome]:
+    """A ticket t succeeds on seed s when (s * 0.618) mod 1 < t: the same seeds for every ticket."""
+    outcomes = []
+    for q in queries:
+        won = (np.array(q.seeds) * 0.618) % 1 < q.ticket[0, 0]
+        outcomes.append(EpisodeOutcome(won.astype(float), won))
+    return outcomes
+
+
+def test_a_ticket_worse_than_the_incumbent_stops_and_the_optimizer_hears_what_it_ran():
+    inner = Scripted([0.6], [0.05, 0.6, 0.9])
+    seen = []
+
+    def evaluate(queries):
+        seen.extend((round(float(q.ticket[0, 0]), 3), q.seeds) for q in queries)
+        return succeeds_with_probability_ticket(queries)
+
+    result = run_search(Raced(inner, block=5, alpha=0.1), evaluate, budget=10_000)
+    runs = {t: sum(len(s) for u, s in seen if u == t) for t in (0.05, 0.6, 0.9)}
+    assert runs[0.05] < len(SEEDS) and runs[0.6] == 2 * len(SEEDS) and runs[0.9] == len(SEEDS)
+    assert all(s in [SEEDS[i : i + 5] for i in range(0, 20, 5)] for _, s in seen)  # the same blocks, in order
+    assert {t: len(r) for t, r in inner.told[1].items()} == {0.05: runs[0.05], 0.6: 20, 0.9: 20}
+    assert result.episodes_used == sum(runs.values())
+
+
+def test_the_incumbent_is_the_best_ticket_that_ran_every_seed():
+    raced = Raced(Scripted([0.3, 0.7], [0.5]), block=10, alpha=0.1)
+    assert raced.incumbent is None
+    while queries := raced.ask():
+        raced.tell(queries, [o.returns for o in succeeds_with_probability_ticket(queries)])
+    expected = succeeds_with_probability_ticket([Query(np.full((1, 1), 0.7), SEEDS)])[0].returns
+    np.testing.assert_array_equal(raced.incumbent, expected)
+
+
+def test_racing_lets_random_search_score_more_tickets_within_a_budget():
+    def tickets_scored(race: bool) -> int:
+        opt = make_optimizer("rs", (1, 1), SEEDS, np.random.default_rng(0), batch_size=10)
+        opt = Raced(opt, block=5, alpha=0.1) if race else opt
+        return len(run_search(opt, succeeds_with_probability_ticket, budget=1_000).candidates)
+
+    assert tickets_scored(True) > 1.3 * tickets_scored(False)
+
+
+@pytest.mark.parametrize(("block", "alpha", "says"),
+                         [(0, 0.1, "block"), (21, 0.1, "block"), (5, 1.0, "level")])
+def test_bad_race_settings_are_one_line(block, alpha, says):
+    with pytest.raises(UserError, match=says):
+        Raced(Scripted(), block, alpha)
+
+
+@pytest.mark.parametrize(("method", "race", "says"),
+                         [("cma-es", 0.0, "level in"), ("cem-racing", 0.1, "its own")])
+def test_a_run_races_with_a_level_and_not_a_self_racing_method(method, race, says):
+    with pytest.raises(OptionError, match=says):
+        SearchConfig("metaworld/reach-v3/flow", "metaworld/reach-v3", method=method, race=race).check()
