@@ -5,7 +5,8 @@ import functools
 import numpy as np
 import pytest
 
-from goldenticket.errors import UserError
+from goldenticket.config import SearchConfig
+from goldenticket.errors import OptionError, UserError
 from goldenticket.ticket_search import (
     CEM,
     Candidate,
@@ -91,6 +92,7 @@ BARS = [
     ("cem-racing", "gaussian", 0.15),
     ("cma-es", "bernoulli", 0.35),
     ("cma-es", "gaussian", 0.15),
+    ("tiled-then-full", "gaussian", 0.15),
     ("cem-bounds", "bernoulli", 0.35),
     ("cem-bounds", "gaussian", 0.15),
 ]
@@ -123,7 +125,8 @@ def record_queries(method: str, rng_seed: int) -> list[tuple[bytes, tuple[int, .
     return seen
 
 
-@pytest.mark.parametrize("method", ["rs", "cem", "zos", "cem-racing", "cma-es", "cem-bounds"])
+@pytest.mark.parametrize("method",
+                         ["rs", "cem", "zos", "cem-racing", "cma-es", "cem-bounds", "tiled-then-full"])
 def test_same_rng_seed_gives_the_same_queries(method):
     first = record_queries(method, rng_seed=3)
     assert len(first) > 10
@@ -150,6 +153,22 @@ def test_cma_es_starts_from_the_mean_it_is_given():
         make_optimizer("cma-es", SHAPE, SEEDS, np.random.default_rng(0), mean=np.zeros((2, 2)))
     with pytest.raises(UserError, match="mean must be of type"):  # a start ticket has rows
         make_optimizer("cma-es", SHAPE, SEEDS, np.random.default_rng(0), mean=np.zeros(5))
+
+
+def test_tiled_then_full_starts_the_full_stage_from_the_tiled_stages_best():
+    opt = make_optimizer("tiled-then-full", SHAPE, SEEDS, np.random.default_rng(0), population=6,
+                         tiled_generations=2, sigma_full=0.01)
+    tiled = []
+    for _ in range(2):
+        asked = opt.ask()
+        tiled += asked
+        assert len(asked) == 6 and all((q.ticket == q.ticket[0]).all() for q in asked)  # tiled rows
+        opt.tell(asked, returns_by_ticket(asked))
+    best = max(tiled, key=lambda q: q.ticket[0, 0]).ticket
+    full = np.array([q.ticket for q in opt.ask()])
+    assert np.abs(full.mean(axis=0) - best).max() < 0.02 and not (full == full[:, :1]).all()
+    with pytest.raises(OptionError, match="subspace full"):
+        SearchConfig("metaworld/reach-v3/flow", "metaworld/reach-v3", method="tiled-then-full").check()
 
 
 def returns_by_ticket(queries: list[Query]) -> list[np.ndarray]:
@@ -250,7 +269,7 @@ def test_bound_racing_drops_surely_worse_tickets_and_keeps_running_the_rest():
     assert result.episodes_used < 20 * len(SEEDS)
 
 
-@pytest.mark.parametrize("method", ["rs", "cem", "zos", "cem-racing", "cem-bounds"])
+@pytest.mark.parametrize("method", ["rs", "cem", "zos", "cem-racing", "cem-bounds", "tiled-then-full"])
 def test_driver_never_exceeds_the_budget(method):
     for budget in range(1, 1_300, 97):
         opt = make_optimizer(method, SHAPE, SEEDS, np.random.default_rng(budget))

@@ -136,6 +136,18 @@ class CMAESSettings:
     iterations: int | None = option(None, "generations (default: until the budget is spent)")
 
 
+@method("tiled-then-full")
+@dataclass(frozen=True)
+class TiledThenFullSettings:
+    """CMA-ES over a tiled ticket, then CMA-ES over the full ticket from the tiled stage's best (run
+    with the full sub-space)."""
+
+    population: int = option(20, "tickets per generation, in both stages")
+    sigma_init: float = option(1.0, "the tiled stage's initial step size")
+    tiled_generations: int = option(2, "generations of the tiled stage")
+    sigma_full: float = option(0.5, "the full stage's initial step size")
+
+
 @dataclass(frozen=True)
 class ModelBasedSettings:
     """Model-based search through an Optuna sampler, each searched number in [-bound, bound]."""
@@ -285,13 +297,19 @@ class SearchConfig(EngineOptions):
                 raise OptionError(f"unknown {name} {getattr(self, name)!r}; choose from "
                                   f"{list(OBJECTIVES)}", name)
         self.settings()
-        self._check_race()
+        self._check_method()
         if self.tickets and not self.validation():
             raise OptionError("tickets: a given ticket runs on the validation seeds beside the search's "
                               "best, so it needs validation_seeds > 0", "tickets", "validation_seeds")
         self._check_tasks()
         self._check_front()
         check_sinks(self.log)
+
+    def _check_method(self) -> None:
+        if self.method == "tiled-then-full" and self.subspace != "full":
+            raise OptionError("tiled-then-full searches the full ticket in its second stage: run it with "
+                              "subspace full", "method", "subspace")
+        self._check_race()
 
     def _check_race(self) -> None:
         if self.race is None:

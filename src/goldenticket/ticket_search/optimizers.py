@@ -25,6 +25,7 @@ from goldenticket.config import (
     GPSettings,
     ModelBasedSettings,
     RandomSearchSettings,
+    TiledThenFullSettings,
     TPESettings,
     ZerothOrderSettings,
     method_settings,
@@ -363,6 +364,44 @@ class CMAES(_Base):
             np.random.set_state(theirs)
 
 
+class TiledThenFull(_Base):
+    """A tiled stage that starts a full one: CMA-ES over one action-sized vector repeated along the
+    horizon for `tiled_generations` generations, then CMA-ES over the full (H, A) ticket from the
+    tiled stage's best ticket (by mean return), with step size `sigma_full`, until the driver stops
+    it. Both stages score each ticket on every search seed."""
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: TiledThenFullSettings | None = None, **params):
+        super().__init__(noise_shape, seeds, rng)
+        s = _settings(TiledThenFullSettings, settings, params)
+        _require(s.tiled_generations >= 1, f"tiled_generations must be >= 1, got {s.tiled_generations}")
+        _require(s.sigma_full > 0, f"sigma_full must be > 0, got {s.sigma_full}")
+        self.settings = s
+        self._tiled = CMAES((1, self.noise_shape[1]), seeds, rng, population=s.population,
+                            sigma_init=s.sigma_init, iterations=s.tiled_generations)
+        self._full: CMAES | None = None
+        self._asked: list[Query] = []
+        self._best, self._best_score = np.zeros((1, self.noise_shape[1])), -math.inf
+
+    def ask(self) -> list[Query]:
+        if self._full is None:
+            self._asked = self._tiled.ask()
+            if self._asked:
+                return self._queries(np.repeat(q.ticket, self.noise_shape[0], axis=0) for q in self._asked)
+            start = np.repeat(self._best, self.noise_shape[0], axis=0)
+            self._full = CMAES(self.noise_shape, self.seeds, self.rng, population=self.settings.population,
+                               sigma_init=self.settings.sigma_full, mean=start)
+        return self._full.ask()
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        if self._full is not None:
+            return self._full.tell(queries, returns)
+        for query, r in zip(self._asked, returns, strict=True):
+            if np.mean(r) > self._best_score:
+                self._best, self._best_score = query.ticket, float(np.mean(r))
+        self._tiled.tell(self._asked, returns)
+
+
 class _ModelBased(_Base):
     """Model-based search through an Optuna sampler over the searched array: `batch_size` tickets
     per ask, each on every search seed, scored by mean return; every number in [-bound, bound]; the
@@ -436,6 +475,7 @@ OPTIMIZERS: dict[str, type] = {
     "cem-racing": CEMRacing,
     "cem-bounds": CEMBounds,
     "cma-es": CMAES,
+    "tiled-then-full": TiledThenFull,
     "tpe": TPE,
     "gp": GaussianProcess,
 }
