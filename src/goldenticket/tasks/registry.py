@@ -35,7 +35,8 @@ def get_task(task: str | Callable, max_steps: int | None = None, success: Callab
     if task not in task_names():
         hint = ", ".join(n for n in task_names() if "pick" in n or "reach" in n)
         raise UserError(f"unknown task {task!r}; tasks look like: {hint} (metaworld-pixels/<env-name> "
-                        "seen through a camera; LeRobot's envs libero/<suite>/<task id>, pusht, "
-                        "aloha/insertion; "
+                        "seen through a camera; LeRobot's envs libero/<suite>/<task id>, "
+                        "libero-listed/<suite>/<task id>, pusht, aloha/insertion, aloha/transfer-cube; "
+                        "robomimic/lift, can, square, transport; "
                         "or package.module:factory for a Gymnasium env of yours)")
     return MetaWorldTask(task, **limit)
