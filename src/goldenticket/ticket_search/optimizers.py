@@ -395,7 +395,8 @@ class TiledThenFull(_Base):
 
     def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
         if self._full is not None:
-            return self._full.tell(queries, returns)
+            self._full.tell(queries, returns)
+            return
         for query, r in zip(self._asked, returns, strict=True):
             if np.mean(r) > self._best_score:
                 self._best, self._best_score = query.ticket, float(np.mean(r))
