@@ -437,8 +437,8 @@ class _ModelBased(_Base):
         raise NotImplementedError
 
     def ask(self) -> list[Query]:
-        num = self.settings.num_tickets
-        n = min(self.settings.batch_size, self.settings.batch_size if num is None else num - self.asked)
+        num, n = self.settings.num_tickets, self.settings.batch_size
+        n = n if num is None else min(n, num - self.asked)
         self.asked += n
         self._trials = [self._study.ask(self._space) for _ in range(n)]
         return self._queries(np.reshape([t.params[name] for name in self._names], self.noise_shape)
