@@ -2,15 +2,17 @@
 
     python benchmarks/budget_curve.py [--budgets 2000 ...]     # resumable, pair by pair
     python benchmarks/budget_curve.py --budgets 850 --subspace full [--search-seeds 40]
+    python benchmarks/budget_curve.py --budgets 300 --method gp --race 0.1 --validation-seeds 20
     python benchmarks/budget_curve.py --plot-only              # redraw budget_curve.png
 
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
 searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
-ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`
-and `--subspace` change the search at those budgets (a point is a budget and a search). The point
-at the default budget and search is the existence table's own. Each pair's row is kept in
-benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget, then -seedsN and
--full where they differ from the defaults), so a run resumes pair by pair, on another machine
+ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`,
+`--subspace`, `--method`, `--race` and `--validation-seeds` change the search at those budgets (a
+point is a budget and a search). The point at the default budget and search is the existence
+table's own. Each pair's row is kept in benchmarks/results/budget_curve/<point>/ once judged
+(<point>: the budget, then -seedsN, -valN, -raceP, -full and the method, its dashes written as
+underscores, where they differ from the defaults), so a run resumes pair by pair, on another machine
 too; its run folder under benchmarks/runs/budget-<point>/ resumes a pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
 """
@@ -23,14 +25,17 @@ import json
 from existence import FRESH_RANGES, HERE, SETTINGS, WEAK_BASE, run_folder, run_pair, table_row, target_summary
 from results_files import RESULTS, write_results
 
+from goldenticket.config import METHODS
 from goldenticket.files import write_atomic
 
 ROWS = RESULTS / "budget_curve"
-SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace")}  # what a point may change
+SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {
+    "race": None}  # what a point may change, with the defaults
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
           "mean_gain": "mean gain in success rate"}
+TOKENS = {"search_seeds": "seeds", "validation_seeds": "val", "race": "race"}  # a folder's numeric parts
 
 
 def existence_rows() -> list[dict]:
@@ -48,10 +53,14 @@ def weak_pairs() -> list[tuple[str, str]]:
 
 
 def folder_name(budget: int, search: dict) -> str:
-    """Where a point's rows are kept: its budget, then what it changes of the default search."""
-    changed = [f"seeds{search['search_seeds']}" if search["search_seeds"] != SEARCH["search_seeds"] else "",
-               "" if search["subspace"] == SEARCH["subspace"] else search["subspace"]]
-    return "-".join([str(budget), *filter(None, changed)])
+    """Where a point's rows are kept: its budget, then what it changes of the default search
+    (a method's dashes written as underscores)."""
+    changed = [f"{TOKENS[k]}{search[k]}" for k in TOKENS if search[k] != SEARCH[k]]
+    if search["subspace"] != SEARCH["subspace"]:
+        changed.append(search["subspace"])
+    if search["method"] != SEARCH["method"]:
+        changed.append(search["method"].replace("-", "_"))
+    return "-".join([str(budget), *changed])
 
 
 def point_of(name: str) -> tuple[int, dict]:
@@ -59,8 +68,15 @@ def point_of(name: str) -> tuple[int, dict]:
     budget, *changed = name.split("-")
     search = dict(SEARCH)
     for part in changed:
-        search |= {"search_seeds": int(part.removeprefix("seeds"))} if part.startswith("seeds") else {
-            "subspace": part}
+        key = next((k for k, token in TOKENS.items() if part.startswith(token)
+                    and part[len(token):][:1].isdigit()), None)
+        if key:
+            number = part.removeprefix(TOKENS[key])
+            search[key] = float(number) if key == "race" else int(number)
+        elif part in ("full", "tiled"):
+            search["subspace"] = part
+        else:
+            search["method"] = part.replace("_", "-")
     return int(budget), search
 
 
@@ -70,8 +86,13 @@ def search_of(point: dict) -> dict:
 
 
 def search_label(search: dict) -> str:
-    space = "" if search["subspace"] == SEARCH["subspace"] else f", {search['subspace']}"
-    return f"{search['search_seeds']} seeds{space}"
+    said = [f"{search['search_seeds']} seeds",
+            "" if search["subspace"] == SEARCH["subspace"] else search["subspace"],
+            "" if search["method"] == SEARCH["method"] else search["method"],
+            "" if search["race"] is None else f"raced at {search['race']}",
+            "" if search["validation_seeds"] == SEARCH["validation_seeds"] else
+            f"{search['validation_seeds']} validation seeds"]
+    return ", ".join(filter(None, said))
 
 
 def budget_rows(budget: int, search: dict, workers: int) -> list[dict]:
@@ -95,8 +116,7 @@ def kept_points() -> list[tuple[int, dict]]:
     pairs, folders = len(weak_pairs()), ROWS.iterdir() if ROWS.exists() else []
     full = [point_of(d.name) for d in folders if len(list(d.glob("*.json"))) == pairs]
     points = {folder_name(b, s): (b, s) for b, s in [(SETTINGS["budget"], SEARCH), *full]}
-    return sorted(points.values(),
-                  key=lambda p: (p[1] != SEARCH, p[1]["subspace"], p[1]["search_seeds"], p[0]))
+    return sorted(points.values(), key=lambda p: (p[1] != SEARCH, search_label(p[1]), p[0]))
 
 
 def curve() -> list[dict]:
@@ -140,32 +160,37 @@ def markdown(points: list[dict]) -> str:
               f"{WEAK_BASE:.0%}; settings otherwise the `search` defaults ({SETTINGS['method']}, "
               f"{SETTINGS['validation_seeds']} validation seeds, top {SETTINGS['top_k']} judged on "
               f"{SETTINGS['heldout']} held-out seeds, the zero ticket beside them); search: the search "
-              "seeds and the sub-space searched (full: every entry of the ticket; tiled: one action-sized "
-              "vector repeated over the horizon); each pair's best ticket judged again on two ranges of 200 "
+              "seeds, the sub-space searched (full: every entry of the ticket; tiled: one action-sized "
+              "vector repeated over the horizon), the method where it is not the default, the racing level "
+              "where tickets are raced (search `--race`) and the validation seeds where they are not "
+              f"{SEARCH['validation_seeds']}; each pair's best ticket judged again on two ranges of 200 "
               "fresh held-out seeds. Significance: one-sided exact paired test, p < 0.05."]
     return "\n".join(lines) + "\n"
 
 
 def plot(points: list[dict], path) -> None:
+    """Each target's metric, the mean of the two fresh ranges, against the episodes spent: one line
+    per search."""
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter, PercentFormatter, ScalarFormatter
 
-    fig = Figure(figsize=(13, 4.8))
+    fig = Figure(figsize=(13, 5.4))
     for ax, (metric, target) in zip(fig.subplots(1, len(TARGETS)), TARGETS.items(), strict=True):
-        for color, search in enumerate(searches(points)):
+        for i, search in enumerate(searches(points)):
             mine = [p for p in points if search_of(p) == search]
-            for (key, said), style in zip(RANGES.items(), ("-o", "--s"), strict=True):
-                ax.plot([p["episodes"]["mean"] for p in mine], [p["targets"][key][metric] for p in mine],
-                        style, color=f"C{color}", label=f"{search_label(search)}, {said}")
+            ax.plot([p["episodes"]["mean"] for p in mine],
+                    [sum(p["targets"][key][metric] for key in RANGES) / len(RANGES) for p in mine],
+                    "-o" if i < 10 else "--s", color=f"C{i % 10}", label=search_label(search))
         ax.axhline(target, color="tab:red", ls="--", label="target")
         ax.axvline(1250, color="0.6", ls=":", label="1250 episodes")
         ax.set(xlabel="search + validation episodes per pair (mean, log scale)", xscale="log",
-               title=f"{TITLES[metric]} (target {target:.0%})", xticks=[500, 1000, 2000, 4000, 8000])
+               title=f"{TITLES[metric]} (target {target:.0%})", xticks=[250, 500, 1000, 2000, 4000, 8000])
         ax.xaxis.set_major_formatter(ScalarFormatter())
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.yaxis.set_major_formatter(PercentFormatter(1.0, decimals=0))
     fig.legend(*fig.axes[0].get_legend_handles_labels(), loc="lower center", ncol=4, fontsize="small")
-    fig.tight_layout(rect=(0, 0.17, 1, 1))
+    fig.suptitle("The mean of the two fresh held-out ranges", fontsize="small")
+    fig.tight_layout(rect=(0, 0.2, 1, 1))
     fig.savefig(path, dpi=90)
 
 
@@ -177,12 +202,16 @@ def main() -> None:
     parser.add_argument("--subspace", choices=("full", "tiled"), default=SEARCH["subspace"],
                         help="what the search varies: one action-sized vector repeated over the horizon, "
                         "or every entry")
+    parser.add_argument("--method", choices=list(METHODS), default=SEARCH["method"], help="search method")
+    parser.add_argument("--race", type=float, default=None, help="race tickets at this level (search --race)")
+    parser.add_argument("--validation-seeds", type=int, default=SEARCH["validation_seeds"],
+                        help="seeds the search's best tickets are validated on")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--plot-only", action="store_true", help="redraw budget_curve.png; run no episode")
     args = parser.parse_args()
-    if min(args.budgets) < 1 or args.workers < 1 or args.search_seeds < 1:
-        parser.error("--budgets, --search-seeds and --workers must be >= 1")
-    search = {"search_seeds": args.search_seeds, "subspace": args.subspace}
+    if min(args.budgets) < 1 or args.workers < 1 or args.search_seeds < 1 or args.validation_seeds < 1:
+        parser.error("--budgets, --search-seeds, --validation-seeds and --workers must be >= 1")
+    search = {k: getattr(args, k) for k in SEARCH}
     if not args.plot_only:
         for budget in args.budgets:
             if (budget, search) != (SETTINGS["budget"], SEARCH):

@@ -82,7 +82,7 @@ def test_budget_curve_keeps_a_changed_search_apart_from_the_default(tmp_path, mo
     weak = [_row(0.5, 0.6, 0.7, 0.001, 0.04), _row(0.3, 0.3, 0.4, 0.01, 0.2)]
     monkeypatch.setattr(budget_curve, "existence_rows", lambda: weak)
     monkeypatch.setattr(budget_curve, "ROWS", tmp_path)
-    full = {"search_seeds": 40, "subspace": "full"}
+    full = budget_curve.SEARCH | {"search_seeds": 40, "subspace": "full"}
     name = budget_curve.folder_name(850, full)
     assert name == "850-seeds40-full" and budget_curve.point_of(name) == (850, full)
     (tmp_path / name).mkdir()
@@ -95,6 +95,18 @@ def test_budget_curve_keeps_a_changed_search_apart_from_the_default(tmp_path, mo
     table = budget_curve.markdown(points)
     assert "`python benchmarks/budget_curve.py --budgets 850 --search-seeds 40 --subspace full`" in table
     assert "| 850 | 40 seeds, full | 1250 (1250) | fresh seeds | 100% |" in table
+
+
+def test_budget_curve_names_a_method_race_and_validation_in_its_folder():
+    search = budget_curve.SEARCH | {"method": "tiled-then-full", "subspace": "full", "race": 0.1,
+                                    "validation_seeds": 20}
+    name = budget_curve.folder_name(300, search)
+    assert name == "300-val20-race0.1-full-tiled_then_full"
+    assert budget_curve.point_of(name) == (300, search)
+    said = "20 seeds, full, tiled-then-full, raced at 0.1, 20 validation seeds"
+    assert budget_curve.search_label(search) == said
+    flags = "--budgets 300 --subspace full --method tiled-then-full --validation-seeds 20 --race 0.1`"
+    assert budget_curve.command(search, [{"budget": 300} | search]).endswith(flags)
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():
