@@ -1,10 +1,13 @@
 """VLA inference on a GPU: per-call latency and engine episodes per second for a SmolVLA-sized and a
 pi0-sized LeRobot model with random weights, at batch 1 to 64, through goldenticket's adapter.
 
-In LeRobot's venv (README, "LeRobot"), on a machine with one CUDA GPU (under 10 minutes):
+In LeRobot's venv (README, "LeRobot"), on a machine with one CUDA GPU:
 
-    python benchmarks/gpu_throughput.py                 # writes benchmarks/results/gpu_throughput.*
+    python benchmarks/gpu_throughput.py                 # writes benchmarks/results/gpu_throughput.json
+    python benchmarks/gpu_throughput.py --models smolvla   # one model (pi0's build takes minutes)
     python benchmarks/gpu_throughput.py --smoke         # a tiny SmolVLA on the CPU: checks the script
+
+The file is written after every row, so a run stopped early keeps what it measured ("finished": false).
 
 The models are built offline (SmolVLA on a SmolVLM2-500M-sized backbone from
 `examples/smolvla_backbone.py`; pi0 with LeRobot's gemma_2b VLM and gemma_300m expert, in bfloat16
@@ -143,9 +146,19 @@ def engine_rate(folder: Path, env_factory, device: str, episodes: int, workers: 
     return episodes / (time.perf_counter() - start)
 
 
+def write(path: Path, rows: list[dict], models: list[str], wall: float, finished: bool) -> None:
+    import torch
+
+    result = {"device": torch.cuda.get_device_name(), "torch": torch.__version__, "models": models,
+              "finished": finished, "wall_s": wall, "rows": rows}
+    path.write_text(json.dumps(result, indent=1) + "\n")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--smoke", action="store_true", help="tiny models on the CPU (checks the script)")
+    parser.add_argument("--models", nargs="+", choices=("smolvla", "pi0"), default=["smolvla", "pi0"],
+                        help="the models to measure, in this order")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args()
     cache = Path(tempfile.mkdtemp(prefix="gpu_throughput_hub"))
@@ -158,8 +171,15 @@ def main() -> None:
     env_factory = make_smoke_env if args.smoke else make_env
     if device == "cuda" and not torch.cuda.is_available():
         sys.exit("gpu_throughput: torch sees no CUDA GPU here; --smoke checks the script on the CPU")
-    rows, started = [], time.perf_counter()
-    for kind in ("smolvla",) if args.smoke else ("smolvla", "pi0"):
+    rows, started, path = [], time.perf_counter(), args.out / "gpu_throughput.json"
+
+    def measured(row: dict) -> None:
+        rows.append(row)
+        print(row, flush=True)
+        if not args.smoke:
+            write(path, rows, args.models, time.perf_counter() - started, finished=False)
+
+    for kind in ("smolvla",) if args.smoke else args.models:
         with tempfile.TemporaryDirectory() as tmp:
             if kind == "pi0":
                 cache_paligemma_tokenizer(cache, write_backbone(Path(tmp) / "tokenizer", "tiny"))
@@ -167,21 +187,17 @@ def main() -> None:
             policy = load_policy(str(folder), device).instructed(INSTRUCTION)
             for batch in BATCHES[: 3 if args.smoke else None]:
                 seconds = latency(policy, env_factory, batch, 2 if args.smoke else 10)
-                rows.append({"model": kind, "batch": batch, "call_s": seconds, "rows_per_s": batch / seconds})
-                print(rows[-1], flush=True)
+                measured({"model": kind, "batch": batch, "call_s": seconds, "rows_per_s": batch / seconds})
             for workers in (1, 4):
                 rate = engine_rate(folder, env_factory, device, 8 if args.smoke else 64, workers)
-                rows.append({"model": kind, "env_workers": workers, "engine_episodes_per_s": rate,
-                             "episode_steps": STEPS})
-                print(rows[-1], flush=True)
+                measured({"model": kind, "env_workers": workers, "engine_episodes_per_s": rate,
+                          "episode_steps": STEPS})
     wall = time.perf_counter() - started
     if args.smoke:
         print(f"smoke run: {wall:.0f} s, nothing written")
         return
-    result = {"device": torch.cuda.get_device_name(), "torch": torch.__version__, "wall_s": wall,
-              "rows": rows}
-    (args.out / "gpu_throughput.json").write_text(json.dumps(result, indent=1) + "\n")
-    print(f"wrote {args.out / 'gpu_throughput.json'} in {wall:.0f} s")
+    write(path, rows, args.models, wall, finished=True)
+    print(f"wrote {path} in {wall:.0f} s")
 
 
 if __name__ == "__main__":

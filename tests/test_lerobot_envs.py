@@ -16,7 +16,7 @@ from goldenticket.tasks import get_task
 from goldenticket.tasks.base import observation_digest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from lerobot_checks import tiny_smolvla  # noqa: E402
+from lerobot_models import tiny_smolvla  # noqa: E402
 
 pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.skipif(
     importlib.util.find_spec("libero") is None, reason="LeRobot's envs are not installed (its venv: README)")]
