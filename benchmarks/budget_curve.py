@@ -8,11 +8,11 @@
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
 searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
 ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`,
-`--subspace`, `--method`, `--race` and `--validation-seeds` change the search at those budgets (a
-point is a budget and a search). The point at the default budget and search is the existence
+`--subspace`, `--method`, `--race`, `--validation-seeds` and `--population` change the search at
+those budgets (a point is a budget and a search). The point at the default budget and search is the existence
 table's own. Each pair's row is kept in benchmarks/results/budget_curve/<point>/ once judged
-(<point>: the budget, then -seedsN, -valN, -raceP, -full and the method, its dashes written as
-underscores, where they differ from the defaults), so a run resumes pair by pair, on another machine
+(<point>: the budget, then -seedsN, -valN, -raceP, -popN, -full and the method, its dashes written
+as underscores, where they differ from the defaults), so a run resumes pair by pair, on another machine
 too; its run folder under benchmarks/runs/budget-<point>/ resumes a pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
 """
@@ -30,12 +30,13 @@ from goldenticket.files import write_atomic
 
 ROWS = RESULTS / "budget_curve"
 SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {
-    "race": None}  # what a point may change, with the defaults
+    "race": None, "population": None}  # what a point may change, with the defaults (None: the method's)
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
           "mean_gain": "mean gain in success rate"}
-TOKENS = {"search_seeds": "seeds", "validation_seeds": "val", "race": "race"}  # a folder's numeric parts
+TOKENS = {"search_seeds": "seeds", "validation_seeds": "val", "race": "race",
+          "population": "pop"}  # a folder's numeric parts
 
 
 def existence_rows() -> list[dict]:
@@ -91,8 +92,16 @@ def search_label(search: dict) -> str:
             "" if search["method"] == SEARCH["method"] else search["method"],
             "" if search["race"] is None else f"raced at {search['race']}",
             "" if search["validation_seeds"] == SEARCH["validation_seeds"] else
-            f"{search['validation_seeds']} validation seeds"]
+            f"{search['validation_seeds']} validation seeds",
+            "" if search["population"] is None else f"{search['population']} tickets a generation"]
     return ", ".join(filter(None, said))
+
+
+def settings_of(search: dict) -> dict:
+    """The search settings of a point's search: a population is the method's setting."""
+    population = search["population"]
+    return {k: v for k, v in search.items() if k != "population"} | (
+        {} if population is None else {"optimizer": {"population": population}})
 
 
 def budget_rows(budget: int, search: dict, workers: int) -> list[dict]:
@@ -104,7 +113,7 @@ def budget_rows(budget: int, search: dict, workers: int) -> list[dict]:
         if not path.exists():
             print(f"[budget {budget}, {search_label(search)}, {i}/{len(todo)}] {policy}", flush=True)
             summary = run_pair(task, policy, HERE / "runs" / f"budget-{name}", workers, budget=budget,
-                               **search)
+                               **settings_of(search))
             write_atomic(path, json.dumps(table_row(summary), indent=2) + "\n")
         rows.append(json.loads(path.read_text()))
     return rows
@@ -162,8 +171,9 @@ def markdown(points: list[dict]) -> str:
               f"{SETTINGS['heldout']} held-out seeds, the zero ticket beside them); search: the search "
               "seeds, the sub-space searched (full: every entry of the ticket; tiled: one action-sized "
               "vector repeated over the horizon), the method where it is not the default, the racing level "
-              "where tickets are raced (search `--race`) and the validation seeds where they are not "
-              f"{SEARCH['validation_seeds']}; each pair's best ticket judged again on two ranges of 200 "
+              "where tickets are raced (search `--race`), the validation seeds where they are not "
+              f"{SEARCH['validation_seeds']} and CMA-ES's tickets a generation where they are not 20; "
+              "each pair's best ticket judged again on two ranges of 200 "
               "fresh held-out seeds. Significance: one-sided exact paired test, p < 0.05."]
     return "\n".join(lines) + "\n"
 
@@ -206,11 +216,13 @@ def main() -> None:
     parser.add_argument("--race", type=float, default=None, help="race tickets at this level (search --race)")
     parser.add_argument("--validation-seeds", type=int, default=SEARCH["validation_seeds"],
                         help="seeds the search's best tickets are validated on")
+    parser.add_argument("--population", type=int, default=None,
+                        help="tickets a generation, for the methods that have generations")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--plot-only", action="store_true", help="redraw budget_curve.png; run no episode")
     args = parser.parse_args()
-    if min(args.budgets) < 1 or args.workers < 1 or args.search_seeds < 1 or args.validation_seeds < 1:
-        parser.error("--budgets, --search-seeds, --validation-seeds and --workers must be >= 1")
+    if min(*args.budgets, args.workers, args.search_seeds, args.validation_seeds, args.population or 1) < 1:
+        parser.error("--budgets, --search-seeds, --validation-seeds, --population and --workers must be >= 1")
     search = {k: getattr(args, k) for k in SEARCH}
     if not args.plot_only:
         for budget in args.budgets:

@@ -107,6 +107,11 @@ def test_budget_curve_names_a_method_race_and_validation_in_its_folder():
     assert budget_curve.search_label(search) == said
     flags = "--budgets 300 --subspace full --method tiled-then-full --validation-seeds 20 --race 0.1`"
     assert budget_curve.command(search, [{"budget": 300} | search]).endswith(flags)
+    smaller = budget_curve.SEARCH | {"population": 10}
+    assert budget_curve.point_of(budget_curve.folder_name(850, smaller)) == (850, smaller)
+    assert budget_curve.settings_of(smaller) == {k: v for k, v in budget_curve.SEARCH.items()
+                                                 if k != "population"} | {"optimizer": {"population": 10}}
+    assert budget_curve.settings_of(search) == {k: v for k, v in search.items() if k != "population"}
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():
