@@ -66,6 +66,16 @@ def test_w_0_first_then_tickets_within_the_bound_on_every_search_seed(method):
 
 
 @pytest.mark.parametrize("method", METHODS)
+def test_random_tickets_are_draws_of_the_policys_own_noise(method):
+    """Before the model proposes, each number is N(0, 1) truncated to the bound: mean |w| near
+    0.80, where uniform draws in [-3, 3] would give 1.5."""
+    opt = make_optimizer(method, SHAPE, SEEDS, np.random.default_rng(0), startup=200, batch_size=50,
+                         start_at_zero=False)
+    tickets = np.concatenate([[q.ticket for q in opt.ask()] for _ in range(2)])
+    assert tickets.shape == (100, *SHAPE) and 0.72 < np.abs(tickets).mean() < 0.88
+
+
+@pytest.mark.parametrize("method", METHODS)
 def test_batches_num_tickets_and_the_budget(method):
     opt = make_optimizer(method, SHAPE, SEEDS, np.random.default_rng(0), batch_size=3, num_tickets=5)
     first = opt.ask()

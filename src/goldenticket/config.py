@@ -150,7 +150,8 @@ class TiledThenFullSettings:
 
 @dataclass(frozen=True)
 class ModelBasedSettings:
-    """Model-based search through an Optuna sampler, each searched number in [-bound, bound]."""
+    """Model-based search through an Optuna sampler, each searched number in [-bound, bound] and seen
+    by the sampler as its N(0, 1) quantile."""
 
     batch_size: int = option(4, "tickets per ask (the sampler treats the unscored ones as pending)")
     startup: int = option(10, "random tickets before the model proposes")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import Protocol
 
 import numpy as np
@@ -405,10 +406,11 @@ class TiledThenFull(_Base):
 
 class _ModelBased(_Base):
     """Model-based search through an Optuna sampler over the searched array: `batch_size` tickets
-    per ask, each on every search seed, scored by mean return; every number in [-bound, bound]; the
-    first ticket is w = 0 if `start_at_zero`. The study lives in memory and its sampler is seeded
-    from `rng` (Optuna's samplers keep their own random state). Runs until `num_tickets` have been
-    asked for (None: until the driver stops it)."""
+    per ask, each on every search seed, scored by mean return; the first ticket is w = 0 if
+    `start_at_zero`. The sampler sees each number as its quantile under N(0, 1), truncated to
+    [-bound, bound], so that a uniform draw there is a draw of the policy's own noise. The study
+    lives in memory and its sampler is seeded from `rng` (Optuna's samplers keep their own random
+    state). Runs until `num_tickets` have been asked for (None: until the driver stops it)."""
 
     settings_class: type[ModelBasedSettings]
 
@@ -426,12 +428,12 @@ class _ModelBased(_Base):
         self.settings, self.asked, self._trials = s, 0, []
         optuna.logging.set_verbosity(optuna.logging.WARNING)  # no line per scored ticket
         self._names = [f"w{i}" for i in range(math.prod(self.noise_shape))]
-        within = optuna.distributions.FloatDistribution(-s.bound, s.bound)
-        self._space = dict.fromkeys(self._names, within)
+        low = NormalDist().cdf(-s.bound)
+        self._space = dict.fromkeys(self._names, optuna.distributions.FloatDistribution(low, 1 - low))
         sampler = self._sampler(optuna, int(rng.integers(2**31)))
         self._study = optuna.create_study(direction="maximize", sampler=sampler)
         if s.start_at_zero:
-            self._study.enqueue_trial(dict.fromkeys(self._names, 0.0))
+            self._study.enqueue_trial(dict.fromkeys(self._names, 0.5))
 
     def _sampler(self, optuna, seed: int):
         raise NotImplementedError
@@ -441,7 +443,8 @@ class _ModelBased(_Base):
         n = n if num is None else min(n, num - self.asked)
         self.asked += n
         self._trials = [self._study.ask(self._space) for _ in range(n)]
-        return self._queries(np.reshape([t.params[name] for name in self._names], self.noise_shape)
+        quantile = NormalDist().inv_cdf
+        return self._queries(np.reshape([quantile(t.params[name]) for name in self._names], self.noise_shape)
                              for t in self._trials)
 
     def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
