@@ -2,18 +2,19 @@
 
     python benchmarks/budget_curve.py [--budgets 2000 ...]     # resumable, pair by pair
     python benchmarks/budget_curve.py --budgets 850 --subspace full [--search-seeds 40]
-    python benchmarks/budget_curve.py --budgets 300 --method gp --race 0.1 --validation-seeds 20
+    python benchmarks/budget_curve.py --budgets 850 --method gp            # another method
+    python benchmarks/budget_curve.py --budgets 300 --validation-seeds 20  # 500 episodes in all
     python benchmarks/budget_curve.py --plot-only              # redraw budget_curve.png
 
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
 searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
 ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`,
 `--subspace`, `--method`, `--race`, `--validation-seeds` and `--population` change the search at
-those budgets (a point is a budget and a search). The point at the default budget and search is the existence
-table's own. Each pair's row is kept in benchmarks/results/budget_curve/<point>/ once judged
-(<point>: the budget, then -seedsN, -valN, -raceP, -popN, -full and the method, its dashes written
-as underscores, where they differ from the defaults), so a run resumes pair by pair, on another machine
-too; its run folder under benchmarks/runs/budget-<point>/ resumes a pair's episodes.
+those budgets (a point is a budget and a search). The point at the default budget and search is the
+existence table's own. Each pair's row is kept in benchmarks/results/budget_curve/<point>/ once
+judged (<point>: the budget, then -seedsN, -valN, -raceP, -popN, -full and the method, its dashes
+written as underscores, where they differ from the defaults), so a run resumes pair by pair, on
+another machine too; its run folder under benchmarks/runs/budget-<point>/ resumes a pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
 """
 
