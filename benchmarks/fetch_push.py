@@ -33,7 +33,7 @@ from examples import fetch_push  # noqa: E402
 
 FRESH = range(1_005_000, 1_005_300)
 METHODS = (SearchConfig("", "").method, "cem-racing")
-CURVE = {"cma-es, tiled, 850": {"budget": 850},  # the budget curve's searches, named as its table does
+CURVE = {"cma-es, tiled, 850": {"budget": 850},  # searches the budget curve compares
          "cma-es, tiled, 300, 20 validation seeds": {"budget": 300, "validation_seeds": 20},
          "tiled-then-full, full, 1600": {"budget": 1600, "method": "tiled-then-full", "subspace": "full"}}
 
