@@ -4,17 +4,19 @@
     python benchmarks/budget_curve.py --budgets 850 --subspace full [--search-seeds 40]
     python benchmarks/budget_curve.py --budgets 850 --method gp            # another method
     python benchmarks/budget_curve.py --budgets 300 --validation-seeds 20  # 500 episodes in all
+    python benchmarks/budget_curve.py --budgets 850 --halving  # each generation raced by halving
     python benchmarks/budget_curve.py --plot-only              # redraw budget_curve.png
 
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
 searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
 ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`,
-`--subspace`, `--method`, `--race`, `--validation-seeds` and `--population` change the search at
-those budgets (a point is a budget and a search). The point at the default budget and search is the
-existence table's own. Each pair's row is kept in benchmarks/results/budget_curve/<point>/ once
-judged (<point>: the budget, then -seedsN, -valN, -raceP, -popN, -full and the method, its dashes
-written as underscores, where they differ from the defaults), so a run resumes pair by pair, on
-another machine too; its run folder under benchmarks/runs/budget-<point>/ resumes a pair's episodes.
+`--subspace`, `--method`, `--race`, `--halving`, `--validation-seeds` and `--population` change
+the search at those budgets (a point is a budget and a search). The point at the default budget and
+search is the existence table's own. Each pair's row is kept in
+benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget, then -seedsN, -valN,
+-raceP, -popN, -halving, -full and the method, its dashes written as underscores, where they differ
+from the defaults), so a run resumes pair by pair, on another machine too; its run folder under
+benchmarks/runs/budget-<point>/ resumes a pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
 """
 
@@ -31,7 +33,8 @@ from goldenticket.files import write_atomic
 
 ROWS = RESULTS / "budget_curve"
 SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {
-    "race": None, "population": None}  # what a point may change, with the defaults (None: the method's)
+    "race": None, "population": None, "halving": False}  # what a point may change, with the defaults
+# (None: the method's)
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
@@ -58,6 +61,8 @@ def folder_name(budget: int, search: dict) -> str:
     """Where a point's rows are kept: its budget, then what it changes of the default search
     (a method's dashes written as underscores)."""
     changed = [f"{TOKENS[k]}{search[k]}" for k in TOKENS if search[k] != SEARCH[k]]
+    if search["halving"]:
+        changed.append("halving")
     if search["subspace"] != SEARCH["subspace"]:
         changed.append(search["subspace"])
     if search["method"] != SEARCH["method"]:
@@ -75,6 +80,8 @@ def point_of(name: str) -> tuple[int, dict]:
         if key:
             number = part.removeprefix(TOKENS[key])
             search[key] = float(number) if key == "race" else int(number)
+        elif part == "halving":
+            search["halving"] = True
         elif part in ("full", "tiled"):
             search["subspace"] = part
         else:
@@ -94,7 +101,8 @@ def search_label(search: dict) -> str:
             "" if search["race"] is None else f"raced at {search['race']}",
             "" if search["validation_seeds"] == SEARCH["validation_seeds"] else
             f"{search['validation_seeds']} validation seeds",
-            "" if search["population"] is None else f"{search['population']} tickets a generation"]
+            "" if search["population"] is None else f"{search['population']} tickets a generation",
+            "halved" if search["halving"] else ""]
     return ", ".join(filter(None, said))
 
 
@@ -147,7 +155,8 @@ def searches(points: list[dict]) -> list[dict]:
 def command(search: dict, points: list[dict]) -> str:
     budgets = [p["budget"] for p in points if search_of(p) == search
                and (p["budget"], search) != (SETTINGS["budget"], SEARCH)]
-    flags = "".join(f" --{k.replace('_', '-')} {search[k]}" for k in SEARCH if search[k] != SEARCH[k])
+    flags = "".join(f" --{k.replace('_', '-')}" + ("" if search[k] is True else f" {search[k]}")
+                    for k in SEARCH if search[k] != SEARCH[k])
     return f"`python benchmarks/budget_curve.py --budgets {' '.join(map(str, budgets))}{flags}`"
 
 
@@ -219,6 +228,8 @@ def main() -> None:
                         help="seeds the search's best tickets are validated on")
     parser.add_argument("--population", type=int, default=None,
                         help="tickets a generation, for the methods that have generations")
+    parser.add_argument("--halving", action="store_true",
+                        help="race each generation by sequential halving (search --halving)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--plot-only", action="store_true", help="redraw budget_curve.png; run no episode")
     args = parser.parse_args()

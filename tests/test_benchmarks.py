@@ -107,6 +107,12 @@ def test_budget_curve_names_a_method_race_and_validation_in_its_folder():
     assert budget_curve.search_label(search) == said
     flags = "--budgets 300 --subspace full --method tiled-then-full --validation-seeds 20 --race 0.1`"
     assert budget_curve.command(search, [{"budget": 300} | search]).endswith(flags)
+    halved = budget_curve.SEARCH | {"halving": True, "validation_seeds": 20}
+    assert budget_curve.folder_name(300, halved) == "300-val20-halving"
+    assert budget_curve.point_of("300-val20-halving") == (300, halved)
+    assert budget_curve.search_label(halved).endswith("20 validation seeds, halved")
+    flags = "--validation-seeds 20 --halving`"
+    assert budget_curve.command(halved, [{"budget": 300} | halved]).endswith(flags)
     smaller = budget_curve.SEARCH | {"population": 10}
     assert budget_curve.point_of(budget_curve.folder_name(850, smaller)) == (850, smaller)
     assert budget_curve.settings_of(smaller) == {k: v for k, v in budget_curve.SEARCH.items()

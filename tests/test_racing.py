@@ -1,12 +1,15 @@
 """Racing across a whole search (ticket_search.racing): tickets stop where a paired sign test on
-the seeds they share with the incumbent says they are worse."""
+the seeds they share with the incumbent says they are worse, or, halved, where the better half of
+their batch goes on without them."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from goldenticket.config import SearchConfig
 from goldenticket.errors import OptionError, UserError
-from goldenticket.ticket_search import EpisodeOutcome, Query, Raced, make_optimizer, run_search
+from goldenticket.ticket_search import EpisodeOutcome, Halved, Query, Raced, make_optimizer, run_search
 
 SEEDS = tuple(range(100, 120))
 
@@ -74,8 +77,46 @@ def test_bad_race_settings_are_one_line(block, alpha, says):
         Raced(Scripted(), block, alpha)
 
 
-@pytest.mark.parametrize(("method", "race", "says"),
-                         [("cma-es", 0.0, "level in"), ("cem-racing", 0.1, "its own")])
-def test_a_run_races_with_a_level_and_not_a_self_racing_method(method, race, says):
+@pytest.mark.parametrize(("method", "race", "halving", "says"),
+                         [("cma-es", 0.0, False, "level in"), ("cem-racing", 0.1, False, "its own"),
+                          ("cem-bounds", None, True, "halving is for"), ("cma-es", 0.1, True, "choose one")])
+def test_a_run_races_with_a_level_or_halves_and_not_a_self_racing_method(method, race, halving, says):
     with pytest.raises(OptionError, match=says):
-        SearchConfig("metaworld/reach-v3/flow", "metaworld/reach-v3", method=method, race=race).check()
+        SearchConfig("metaworld/reach-v3/flow", "metaworld/reach-v3", method=method, race=race,
+                     halving=halving).check()
+
+
+def test_halving_runs_the_better_half_on_each_next_block_and_tells_what_each_ran():
+    tickets = [round(0.05 * i, 2) for i in range(1, 21)]  # 20 tickets: the higher, the better
+    inner, seen = Scripted(tickets), []
+
+    def evaluate(queries):
+        seen.append([round(float(q.ticket[0, 0]), 2) for q in queries])
+        assert len({q.seeds for q in queries}) == 1  # a block: the same seeds for every ticket
+        return succeeds_with_probability_ticket(queries)
+
+    result = run_search(Halved(inner, block=5), evaluate, budget=10_000)
+    assert [len(block) for block in seen] == [20, 10, 5, 2]
+    assert set(seen[-1]) <= set(tickets[-5:])  # the last ones are among the best
+    ran = {t: 5 * sum(t in block for block in seen) for t in tickets}
+    assert {t: len(r) for t, r in inner.told[0].items()} == ran and result.episodes_used == 185
+
+
+def test_halving_gives_cma_es_more_generations_within_a_budget():
+    def generations(halve: bool) -> int:
+        opt = make_optimizer("cma-es", (1, 1), SEEDS, np.random.default_rng(0), population=20)
+        run_search(Halved(opt, block=5) if halve else opt, succeeds_with_probability_ticket, budget=850)
+        return opt.iteration
+
+    assert (generations(False), generations(True)) == (2, 4)
+
+
+def test_a_run_with_halving_halves_its_method(monkeypatch):
+    from goldenticket.job import Plan, checked_tasks, stages
+    from goldenticket.policies import load_policy
+
+    monkeypatch.syspath_prepend(str(Path(__file__).parent))
+    cfg = SearchConfig("byo_example:make_policy", "byo_example:make_env", halving=True, workers=1)
+    policy = load_policy(cfg.policy)
+    built = stages.optimizer(Plan.of(cfg, policy, checked_tasks(policy, cfg)))
+    assert isinstance(built, Halved) and [len(b) for b in built.blocks] == [5, 5, 5, 5]

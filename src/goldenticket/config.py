@@ -243,6 +243,9 @@ class SearchConfig(EngineOptions):
                                 "seeds: it stops where a one-sided sign test on the seeds both ran says it "
                                 "is worse at p < RACE, e.g. 0.1 (not with cem-racing or cem-bounds, which "
                                 "race their own way; default: every ticket runs on every search seed)")
+    halving: bool = option(False, "race each generation by sequential halving: every ticket on the first 5 "
+                           "search seeds, the better half on the next 5, and so on, the last ones on every "
+                           "search seed (not with race, cem-racing or cem-bounds)", action="store_true")
     max_steps: int | None = option(None, "episode step limit (default: the task's, 150 for Meta-World)")
     success: str | Callable | None = option(None, SUCCESS_HELP)
     subspace: str = option("tiled", "what the search varies: tiled (one action-sized vector repeated over "
@@ -313,13 +316,14 @@ class SearchConfig(EngineOptions):
         self._check_race()
 
     def _check_race(self) -> None:
-        if self.race is None:
-            return
-        if not 0 < self.race < 1:
+        if self.race is not None and not 0 < self.race < 1:
             raise OptionError(f"race must be a level in (0, 1), e.g. 0.1, got {self.race}", "race")
-        if self.method in ("cem-racing", "cem-bounds"):
-            raise OptionError(f"{self.method} races its own populations; race is for the other methods",
-                              "race", "method")
+        if self.race is not None and self.halving:
+            raise OptionError("race and halving are two ways to race; choose one", "race", "halving")
+        raced = "race" if self.race is not None else "halving" if self.halving else None
+        if raced and self.method in ("cem-racing", "cem-bounds"):
+            raise OptionError(f"{self.method} races its own populations; {raced} is for the other methods",
+                              raced, "method")
 
     def _check_tasks(self) -> None:
         if len(self.tasks) > 1:

@@ -29,8 +29,9 @@ def open_store(out: str | Path, plan: Plan) -> RunStore:
         "policy": names.policy, "task": names.task, "success": named(cfg.success),
         "policy_fingerprint": names.fingerprint,
         "workers": None, "backend": None, "address": None}  # where episodes run does not change them
-    if cfg.optimizer is None:
-        del config["optimizer"]  # the method's own settings: claimed as before they could change
+    for name in ("optimizer", "halving"):  # claimed as before they could be set, while unset
+        if not config[name]:
+            del config[name]
     if not store.claim_config(config):
         store.close()
         raise UserError(f"{out} holds a different run; choose another output folder or the same options")

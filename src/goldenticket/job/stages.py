@@ -24,6 +24,7 @@ from goldenticket.studies.pareto import pareto_study
 from goldenticket.ticket_search import (
     OPTIMIZERS,
     RACE_BLOCK,
+    Halved,
     Optimizer,
     Raced,
     SearchResult,
@@ -52,13 +53,15 @@ def search_evaluate(evaluator: Evaluator, fingerprint: str, expand: Callable = l
 
 
 def optimizer(plan: Plan) -> Optimizer:
-    """The run's optimizer over its sub-space, fresh from its seed, on the plan's seed keys (raced if
-    the run says so); OptionError if the budget cannot score even the first ticket it asks for."""
+    """The run's optimizer over its sub-space, fresh from its seed, on the plan's seed keys (raced or
+    halved if the run says so); OptionError if the budget cannot score even the first ticket it asks for."""
     cfg, shape = plan.cfg, plan.policy.noise_shape
     built = OPTIMIZERS[cfg.method](plan.subspace.shape(shape), plan.keys, np.random.default_rng(cfg.seed),
                                    cfg.settings())
     if cfg.race is not None:
         built = Raced(built, RACE_BLOCK, cfg.race)
+    elif cfg.halving:
+        built = Halved(built, RACE_BLOCK)
     needed = len(copy.deepcopy(built).ask()[0].seeds)
     if cfg.budget < needed:
         raise OptionError(f"budget {cfg.budget} is too small: {cfg.method} needs {needed} episodes to score "

@@ -19,7 +19,7 @@ from goldenticket.ticket_search.optimizers import (
     ZerothOrder,
     make_optimizer,
 )
-from goldenticket.ticket_search.racing import RACE_BLOCK, Raced
+from goldenticket.ticket_search.racing import RACE_BLOCK, Halved, Raced
 
 __all__ = [
     "CEM",
@@ -28,6 +28,7 @@ __all__ = [
     "CEMRacing",
     "Candidate",
     "EpisodeOutcome",
+    "Halved",
     "Optimizer",
     "Query",
     "RACE_BLOCK",
