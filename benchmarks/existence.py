@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 
@@ -36,6 +37,7 @@ from goldenticket.job.evaluate import evaluate_tickets
 from goldenticket.policies import BUNDLED_DIR
 from goldenticket.policies.registry import split_steps
 from goldenticket.report import p_vs_base, rate_text
+from goldenticket.results import to_run
 from goldenticket.stats import paired_exact_test, sign_test, wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import seeds_in
@@ -164,8 +166,25 @@ def target_summary(rows: list[dict]) -> dict:
     for key in FRESH_RANGES:
         out[key]["below_zero"] = sum(r[key]["p_below_zero"] < 0.05 for r in rows)
         out[key]["below_base"] = sum(r[key]["p_below_base"] < 0.05 for r in rows)
+        out[key]["delivered"] = targets(weak, lambda r, key=key: delivered(r, key)) | {
+            "kept_base": sum(map(keeps_base, weak))}
     spent = [r["search_and_validation"] for r in rows]
     return {"targets": out, "episodes": {"mean": float(np.mean(spent)), "max": max(spent)}}
+
+
+def keeps_base(row: dict) -> bool:
+    """Whether the job delivers the base rather than a ticket (`results.to_run` on the judged seeds;
+    the zero ticket is among the judged tickets here, so where it is run it is the best ticket)."""
+    return to_run(row["best"]["success_rate"], row["zero"]["success_rate"], row["base"]["success_rate"],
+                  row["golden"]) == "base"
+
+
+def delivered(row: dict, key: str) -> dict:
+    """Base, zero ticket and, as "best", what the job delivers on fresh range `key`: the best
+    ticket, or the base (then untested: no gain, no p-value)."""
+    fresh = row[key] | {"best": row[key]}
+    return fresh | {"best": fresh["base"], "p_vs_base": math.nan, "p_vs_zero": math.nan} if keeps_base(row) \
+        else fresh
 
 
 def base_floor(rows: list[dict], bar: float, share: float = 0.9) -> dict | None:

@@ -69,7 +69,7 @@ def run(out: Path, options: dict, workers: int) -> dict:
                                   workers=workers)
     done = time.perf_counter()
     recorded = summary.to_dict()
-    keys = ("base", "zero", "best", "search_episodes", "heldout_seeds")
+    keys = ("base", "zero", "best", "deliver", "search_episodes", "heldout_seeds")
     return {"search": {k: recorded[k] for k in keys},
             "fresh": to_dicts(fresh), "fresh_seeds": [FRESH.start, FRESH.stop - 1],
             "options": options | {"runs": str(out), "workers": workers},
@@ -81,8 +81,9 @@ def report(results: dict, footer: str) -> str:
              "|---|---|---|---|---|---|---|"]
     for method, r in results.items():
         best_id, wall = r["search"]["best"]["ticket_id"], r["wall_seconds"]
-        search = (f"{method}, {r['search']['search_episodes']} episodes: ticket {best_id} "
-                  f"({wall['search']} s search and verdict, {wall['fresh']} s fresh check)")
+        search = (f"{method}, {r['search']['search_episodes']} episodes: ticket {best_id}, delivers the "
+                  f"{r['search']['deliver']} ({wall['search']} s search and verdict, {wall['fresh']} s fresh "
+                  "check)")
         for label, rows, seeds in (("judged (top tickets)", r["search"] | {best_id: r["search"]["best"]},
                                     r["search"]["heldout_seeds"]),
                                    ("fresh (best ticket)", r["fresh"], r["fresh_seeds"])):

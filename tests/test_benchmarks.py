@@ -37,12 +37,23 @@ def test_existence_summary_counts_gains_sign_test_and_targets():
     expected = {"vs_base": 0.5, "vs_zero": 0.25,
                 "failure_reduction": pytest.approx(np.mean([0.2 / 0.5, 0, -0.05 / 0.4, 0.1 / 0.7])),
                 "mean_gain": pytest.approx(np.mean([0.2, 0, -0.05, 0.1]))}
-    on_fresh = expected | {"below_zero": 1, "below_base": 0}
+    on_fresh = expected | {"below_zero": 1, "below_base": 0, "delivered": expected | {"kept_base": 1}}
     assert s["targets"] == {"pairs": 4, "judged": expected, "fresh": on_fresh, "fresh_2": on_fresh}
     assert s["episodes"] == {"mean": 1212.5, "max": 1250}
     assert "significantly below the zero ticket in 1 (target 0)" in table and "at most 1250" in table
     strong = existence.summary_rows([*rows, _row(0.9, 0.9, 1.0, 0.001, 0.001)])["targets"]
     assert strong["pairs"] == 4 and strong["judged"] == expected  # a base above 85% is not a target pair
+
+
+def test_where_the_best_ticket_is_not_above_the_base_the_job_delivers_the_base():
+    behind, ahead = _row(0.5, 0.3, 0.45, 0.9, 0.01), _row(0.5, 0.3, 0.55, 0.2, 0.01)
+    assert existence.keeps_base(behind) and not existence.keeps_base(ahead)
+    kept = existence.delivered(behind, "fresh")
+    assert kept["best"] == _rate(0.5) and not kept["p_vs_base"] < 0.05
+    assert existence.delivered(ahead, "fresh")["best"] == ahead["fresh"]
+    delivered = existence.target_summary([behind, ahead])["targets"]["fresh"]["delivered"]
+    assert delivered == {"vs_base": 0.0, "vs_zero": 0.5, "failure_reduction": pytest.approx(0.05 / 0.5 / 2),
+                         "mean_gain": pytest.approx(0.025), "kept_base": 1}
 
 
 def test_base_floor_is_the_lowest_base_above_which_nine_in_ten_pairs_reach_the_bar():
@@ -69,9 +80,11 @@ def test_budget_curve_adds_kept_budgets_to_the_existence_tables_point(tmp_path, 
     points = budget_curve.curve()
     assert [p["budget"] for p in points] == [850, 2000]
     assert points[0]["targets"]["fresh"]["mean_gain"] == pytest.approx(0.15)
-    assert points[1]["targets"]["fresh"] | {"failure_reduction": 0} == {
+    fresh = points[1]["targets"]["fresh"]
+    assert fresh | {"failure_reduction": 0, "delivered": None} == {
         "vs_base": 1.0, "vs_zero": 1.0, "failure_reduction": 0, "mean_gain": pytest.approx(0.45),
-        "below_zero": 0, "below_base": 0}
+        "below_zero": 0, "below_base": 0, "delivered": None}
+    assert fresh["delivered"]["kept_base"] == 0 and fresh["delivered"]["mean_gain"] == fresh["mean_gain"]
     assert points[1]["episodes"] == {"mean": 2400, "max": 2400}
     table = budget_curve.markdown(points)
     assert "--budgets 2000`" in table

@@ -7,10 +7,11 @@ from pathlib import Path
 import pytest
 
 from goldenticket.config import SearchConfig
-from goldenticket.evaluation import judged_arms
+from goldenticket.evaluation import VerdictRow, judged_arms
 from goldenticket.job import find_golden_tickets
-from goldenticket.results import Summary
+from goldenticket.results import Summary, to_run
 from goldenticket.rollout import NONFINITE, EpisodeResult
+from goldenticket.stats import Rate
 from goldenticket.tickets import Ticket
 
 HERE = Path(__file__).parent
@@ -46,7 +47,8 @@ def test_the_job_returns_its_summary_typed_and_writes_it_as_summary_json(tmp_pat
     written = json.loads((tmp_path / "summary.json").read_text())
     assert written == summary.to_dict()
     assert list(written) == ["task", "policy", "method", "seed", "search_episodes", "stopped_because",
-                             "heldout_seeds", "base", "zero", "best", "tickets", "p_value_note", "front"]
+                             "heldout_seeds", "base", "zero", "best", "deliver", "tickets", "p_value_note",
+                             "front"]
     assert summary.best == summary.tickets[0] and written["best"] == summary.best.to_dict()
     assert list(summary.best.to_dict())[-3:] == ["ticket_id", "ticket_path", "search_score"]
     for found in summary.tickets:
@@ -60,17 +62,28 @@ def test_the_job_returns_its_summary_typed_and_writes_it_as_summary_json(tmp_pat
 
 
 def test_without_a_golden_ticket_the_verdict_says_what_to_run_instead():
-    from goldenticket.evaluation import VerdictRow
     from goldenticket.report import verdict_text
-    from goldenticket.stats import Rate
 
     def row(k, p=None):
         return VerdictRow(Rate.counted(k, 100), p_vs_base=p)
 
-    weak = row(52, 0.4)
+    weak = row(48, 0.7)
     for zero, said in ((row(80, 1e-6), "The zero ticket (w = 0) is: 80.0%, p = 1e-06; deploy it"),
+                       (row(53, 0.3), "The zero ticket (w = 0, 53.0%) is ahead of the base on these seeds"),
                        (row(49, 0.7), "Keep the base policy (fresh Gaussian noise)")):
         text = verdict_text({"base": row(50), "zero ticket": zero, "ticket t": weak}, weak, "t", "")
-        assert "No golden ticket: the best ticket (t, 52.0%)" in text and said in text
+        assert "No golden ticket: the best ticket (t, 48.0%)" in text and said in text
+    ahead = row(55, 0.2)
+    text = verdict_text({"base": row(50), "zero ticket": row(49, 0.7), "ticket t": ahead}, ahead, "t", "")
+    assert "It is ahead of the base on these seeds: run it rather than the base, though not proven" in text
     judged_zero = {"base": row(50), "zero ticket": row(60, 0.01), "ticket z (w = 0)": row(60, 0.06)}
-    assert "Keep the base policy" in verdict_text(judged_zero, judged_zero["ticket z (w = 0)"], "z", "")
+    assert "ahead of the base on these seeds" in verdict_text(judged_zero, judged_zero["ticket z (w = 0)"],
+                                                             "z", "")
+
+
+@pytest.mark.parametrize(("best", "zero", "golden", "run"), [
+    (0.6, 0.7, True, "best"),  # golden: the best ticket, whatever the zero ticket did
+    (0.55, 0.52, False, "best"), (0.55, 0.55, False, "best"), (0.48, 0.53, False, "zero"),
+    (0.5, 0.49, False, "base"), (0.3, 0.2, False, "base")])
+def test_the_job_runs_an_arm_ahead_of_the_base_or_else_the_base(best, zero, golden, run):
+    assert to_run(best, zero, 0.5, golden) == run

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from goldenticket.evaluation import ZERO_MARK
+from goldenticket.results import to_run
 
 if TYPE_CHECKING:
     from goldenticket.evaluation import VerdictRow
@@ -38,8 +39,8 @@ def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
 
 def verdict_text(rows: dict[str, VerdictRow], best: VerdictRow, name: str, note: str) -> str:
     """The verdict table (rows from `results.arm_rows`), a one-line plain verdict on the best
-    ticket (`best`, called `name`), and how to read the p-values (and the non-finite column, when
-    shown)."""
+    ticket (`best`, called `name`) saying what to run (`results.to_run`), and how to read the
+    p-values (and the non-finite column, when shown)."""
     base = rows["base"].rate.success_rate
     if best.golden:
         line = (f"Golden ticket {name}: {best.rate.success_rate:.1%} vs base {base:.1%} on "
@@ -47,7 +48,7 @@ def verdict_text(rows: dict[str, VerdictRow], best: VerdictRow, name: str, note:
     else:
         line = (f"No golden ticket: the best ticket ({name}, {best.rate.success_rate:.1%}) is not "
                 f"significantly better than the base ({base:.1%}); p = {best.p_vs_base:.3g} >= 0.05. "
-                + instead(rows))
+                + instead(rows, best))
     if any(r.nonfinite for r in rows.values()):
         note += (" non-finite: episodes the policy ended with a NaN or infinite action, counted as "
                  "failures.")
@@ -55,13 +56,20 @@ def verdict_text(rows: dict[str, VerdictRow], best: VerdictRow, name: str, note:
     return f"{table}\n\n{line}\n{note}"
 
 
-def instead(rows: dict[str, VerdictRow]) -> str:
-    """What to run when no judged ticket is golden: the zero ticket where it is golden and was not
-    judged among the tickets (there its p-value is adjusted like theirs), else the base."""
-    zero = rows["zero ticket"]
-    if zero.golden and not any(label.endswith(ZERO_MARK) for label in rows):
+def instead(rows: dict[str, VerdictRow], best: VerdictRow) -> str:
+    """What to run when the best ticket (`best`) is not golden (`results.to_run`): the zero ticket
+    where it is golden and was not judged among the tickets (there its p-value is adjusted like
+    theirs), an arm ahead of the base though not proven better, or the base."""
+    zero, unsure = rows["zero ticket"], " though not proven better (more held-out seeds would tell)."
+    run = to_run(best.rate.success_rate, zero.rate.success_rate, rows["base"].rate.success_rate, best.golden)
+    if run == "zero" and zero.golden and not any(label.endswith(ZERO_MARK) for label in rows):
         return (f"The zero ticket (w = 0) is: {zero.rate.success_rate:.1%}, p = {zero.p_vs_base:.3g}; "
                 "deploy it (a ticket of zeros) rather than these tickets.")
+    if run == "zero":
+        return (f"The zero ticket (w = 0, {zero.rate.success_rate:.1%}) is ahead of the base on these "
+                "seeds: run it rather than the base," + unsure)
+    if run == "best":
+        return "It is ahead of the base on these seeds: run it rather than the base," + unsure
     return "Keep the base policy (fresh Gaussian noise) rather than these tickets."
 
 

@@ -15,6 +15,21 @@ def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow])
     return {"base": base, "zero ticket": zero} | {f"ticket {t}": row for t, row in tickets.items()}
 
 
+def to_run(best: float, zero: float, base: float, golden: bool) -> str:
+    """What to run after a verdict, given the held-out success rates of the best ticket, the zero
+    ticket and the base, and whether the best is golden; never an arm below the base there: "best"
+    if it is golden, else whichever of "best" and "zero" succeeded more often (the best on a tie;
+    where the zero ticket was judged among the tickets it is the best on a tie) if that is more
+    often than the base, else "base"."""
+    if golden:
+        return "best"
+    ahead, rate = ("zero", zero) if zero > best else ("best", best)
+    return ahead if rate > base else "base"
+
+
+DELIVERED = {"best": "ticket", "zero": "zero ticket", "base": "base"}  # summary.json's `deliver`
+
+
 @dataclass(frozen=True)
 class FoundTicket:
     """A ticket the job judged: its id and file, its held-out verdict, its mean return on the search
@@ -117,6 +132,13 @@ class Summary:
         return self.tickets[0]
 
     @property
+    def deliver(self) -> str:
+        """What the job delivers (`to_run`): "ticket" (the best), "zero ticket" or "base"."""
+        best = self.best.heldout
+        rates = (best.rate.success_rate, self.zero.rate.success_rate, self.base.rate.success_rate)
+        return DELIVERED[to_run(*rates, best.golden)]
+
+    @property
     def p_value_note(self) -> str:
         return p_value_note(len(self.tickets))
 
@@ -129,7 +151,8 @@ class Summary:
         front = {} if self.front is None else {"front": list(self.front.tickets)}
         return {"task": self.task} | self.run.to_dict() | {
             "base": self.base.to_dict(), "zero": self.zero.to_dict(), "best": self.best.to_dict(),
-            "tickets": [t.to_dict() for t in self.tickets], "p_value_note": self.p_value_note} | front
+            "deliver": self.deliver, "tickets": [t.to_dict() for t in self.tickets],
+            "p_value_note": self.p_value_note} | front
 
 
 @dataclass(frozen=True)
