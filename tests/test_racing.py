@@ -2,7 +2,9 @@
 the seeds they share with the incumbent says they are worse, or, halved, where the better half of
 their batch goes on without them."""
 
+from contextlib import contextmanager
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -120,3 +122,54 @@ def test_a_run_with_halving_halves_its_method(monkeypatch):
     policy = load_policy(cfg.policy)
     built = stages.optimizer(Plan.of(cfg, policy, checked_tasks(policy, cfg)))
     assert isinstance(built, Halved) and [len(b) for b in built.blocks] == [5, 5, 5, 5]
+
+
+class Validating:
+    """An evaluator for `stages.validate`: ticket t succeeds on seed s as in
+    `succeeds_with_probability_ticket`; records each call's (tickets, seeds) and the bar's size."""
+
+    def __init__(self):
+        self.calls, self.total = [], None
+
+    @contextmanager
+    def progress(self, total, desc):
+        self.total = total
+        yield
+
+    def run(self, jobs, task):
+        self.calls.append(([label for label, _, _ in jobs], tuple(jobs[0][2])))
+        queries = [Query(np.asarray(source.noise), tuple(seeds)) for _, source, seeds in jobs]
+        outcomes = succeeds_with_probability_ticket(queries)
+        return [[SimpleNamespace(ret=r) for r in o.returns] for o in outcomes]
+
+
+@pytest.mark.parametrize("halving", [False, True])
+def test_halved_validation_runs_the_better_half_on_the_next_seeds_while_more_than_top_k(halving):
+    from goldenticket.job.stages import validate
+    from goldenticket.tickets import Ticket, TicketRecord
+
+    qualities = (0.3, 0.9, 0.5, 0.8, 0.1, 0.7, 0.2, 0.6, 0.4, 0.85)
+    tickets = [Ticket(np.full((1, 1), q), TicketRecord()) for q in qualities]
+    seeds = list(range(500, 540))
+    plan = SimpleNamespace(seeds=SimpleNamespace(validation=seeds), task_names=["t"],
+                           cfg=SimpleNamespace(halving=halving, top_k=3))
+    evaluator = Validating()
+    validated = validate(plan, evaluator, tickets)
+    ids = [t.id for t in tickets]
+    if halving:
+        assert [(len(labels), s) for labels, s in evaluator.calls] == [(10, tuple(seeds[:10])),
+                                                                        (5, tuple(seeds[10:20]))]
+        assert evaluator.total == 150
+        ran = {t.id: t.record.validation_seeds for t in validated.scored}
+        assert sorted(ran.values()).count((500, 519)) == 5 and sorted(ran.values()).count((500, 509)) == 5
+    else:
+        assert evaluator.calls == [(ids, tuple(seeds))] and evaluator.total == 400
+    assert {t.id for t in validated.chosen} == {ids[1], ids[9], ids[3]}  # 0.9, 0.85 and 0.8
+
+
+@pytest.mark.parametrize(("tickets", "keep", "blocks", "sizes"),
+                         [(10, 3, 4, [10, 5]), (20, 3, 4, [20, 10, 5]), (10, 3, 1, [10]), (4, 3, 4, [4])])
+def test_halving_sizes_stop_where_the_half_would_not_be_more_than_to_keep(tickets, keep, blocks, sizes):
+    from goldenticket.job.stages import halving_sizes
+
+    assert halving_sizes(tickets, keep, blocks) == sizes

@@ -243,9 +243,11 @@ class SearchConfig(EngineOptions):
                                 "seeds: it stops where a one-sided sign test on the seeds both ran says it "
                                 "is worse at p < RACE, e.g. 0.1 (not with cem-racing or cem-bounds, which "
                                 "race their own way; default: every ticket runs on every search seed)")
-    halving: bool = option(False, "race each generation by sequential halving: every ticket on the first 5 "
-                           "search seeds, the better half on the next 5, and so on, the last ones on every "
-                           "search seed (not with race, cem-racing or cem-bounds)", action="store_true")
+    halving: bool = option(False, "spend episodes by sequential halving: each generation's tickets on the "
+                           "first 5 search seeds, the better half on the next 5, and so on, the last ones on "
+                           "every search seed (not with race, cem-racing or cem-bounds); and the tickets to "
+                           "validate on the first 10 validation seeds, the better half on the next 10, while "
+                           "that half is more than top_k", action="store_true")
     max_steps: int | None = option(None, "episode step limit (default: the task's, 150 for Meta-World)")
     success: str | Callable | None = option(None, SUCCESS_HELP)
     subspace: str = option("tiled", "what the search varies: tiled (one action-sized vector repeated over "

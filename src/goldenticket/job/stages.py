@@ -34,6 +34,7 @@ from goldenticket.ticket_search import (
 from goldenticket.tickets import Ticket, ticket_id
 
 Evaluate = Callable  # the driver's evaluate(queries) -> outcomes
+VALIDATION_BLOCK = 10  # validation seeds a halved validation runs its tickets on between two cuts
 STOPPED = {"budget": "the next tickets did not fit whole",  # why a search spent less than its budget
            "k perfect tickets": "tickets perfect on every seed"}
 
@@ -114,16 +115,41 @@ class Validated:
 def validate(plan: Plan, evaluator: Evaluator, tickets: list[Ticket], top_k: int | None = None) -> Validated:
     """The `top_k` (default: the config's) of `tickets` by mean return on the validation seeds of
     every task (ties: search rank): a selection on states neither the search nor the held-out
-    verdict uses."""
-    seeds, tasks = plan.seeds.validation, plan.task_names
-    with evaluator.progress(len(seeds) * len(tickets) * len(tasks), "validation: search's best tickets"):
-        runs = [evaluator.run([(t.id, Constant(t.noise), seeds) for t in tickets], task) for task in tasks]
-    scores = [float(np.mean([np.mean([r.ret for r in per_task[i]]) for per_task in runs]))
-              for i in range(len(tickets))]
-    scored = [t.with_record(validation_score=score, validation_seeds=(seeds[0], seeds[-1]))
-              for t, score in zip(tickets, scores, strict=True)]
-    ranked = sorted(range(len(tickets)), key=lambda i: -scores[i])  # stable: ties keep search rank
-    return Validated(scored, [scored[i] for i in ranked[: top_k or plan.cfg.top_k]])
+    verdict uses. With the run's `halving`, the tickets run VALIDATION_BLOCK seeds at a time and the
+    better half goes on while that half is more than `top_k` (`halving_sizes`); each is scored on the
+    seeds it ran."""
+    seeds, tasks, k = plan.seeds.validation, plan.task_names, top_k or plan.cfg.top_k
+    block = VALIDATION_BLOCK if plan.cfg.halving else len(seeds)
+    blocks = [seeds[i : i + block] for i in range(0, len(seeds), block)]
+    sizes = halving_sizes(len(tickets), k, len(blocks))
+    returns: list[list[list[float]]] = [[[] for _ in tasks] for _ in tickets]  # ticket -> task -> returns
+    alive = list(range(len(tickets)))
+    with evaluator.progress(len(tasks) * sum(n * len(b) for n, b in zip(sizes, blocks, strict=False)),
+                            "validation: search's best tickets"):
+        for n, seeds_now in zip(sizes, blocks, strict=False):
+            alive = sorted(sorted(alive, key=lambda i: -_score(returns[i]))[:n]) if n < len(alive) else alive
+            jobs = [(tickets[i].id, Constant(tickets[i].noise), seeds_now) for i in alive]
+            for j, task in enumerate(tasks):
+                for i, results in zip(alive, evaluator.run(jobs, task), strict=True):
+                    returns[i][j] += [r.ret for r in results]
+    scored = [t.with_record(validation_score=_score(r), validation_seeds=(seeds[0], seeds[len(r[0]) - 1]))
+              for t, r in zip(tickets, returns, strict=True)]
+    ranked = sorted(alive, key=lambda i: -_score(returns[i]))  # stable: ties keep search rank
+    return Validated(scored, [scored[i] for i in ranked[:k]])
+
+
+def halving_sizes(tickets: int, keep: int, blocks: int) -> list[int]:
+    """How many of `tickets` run on each of at most `blocks` blocks when each next block takes the
+    better half, while that half is more than the `keep` to choose: [10, 5] for 10, 3 and 4."""
+    sizes = [tickets]
+    while len(sizes) < blocks and sizes[-1] // 2 > keep:
+        sizes.append(sizes[-1] // 2)
+    return sizes
+
+
+def _score(returns: list[list[float]]) -> float:
+    """A ticket's validation score: its mean return per task, averaged over the tasks."""
+    return float(np.mean([np.mean(per_task) for per_task in returns]))
 
 
 def with_zero(tickets: list[Ticket], zero: Ticket) -> list[Ticket]:
