@@ -29,8 +29,9 @@ def search(policy, task, out: str | Path, **options):
     summary.json), or a `results.MultitaskSummary` when `task` is several task names (a tuple):
     one ticket for a multi-task policy. `options`: the fields
     of `config.SearchConfig` (method, budget, seed, search_seeds, heldout, top_k, objective,
-    front_objective, stop_after_perfect, max_tickets, max_steps, success, subspace,
-    validation_seeds, no_regression, tickets, log, workers, backend, address, max_nonfinite)."""
+    front_objective, stop_after_perfect, max_tickets, race, halving, max_steps, success, subspace,
+    validation_seeds, no_regression, tickets, log, optimizer, workers, backend, address,
+    max_nonfinite)."""
     from goldenticket.config import SearchConfig, make
     from goldenticket.job import find_golden_tickets
 
