@@ -87,3 +87,19 @@ def test_without_a_golden_ticket_the_verdict_says_what_to_run_instead():
     (0.5, 0.49, False, "base"), (0.3, 0.2, False, "base")])
 def test_the_job_runs_an_arm_ahead_of_the_base_or_else_the_base(best, zero, golden, run):
     assert to_run(best, zero, 0.5, golden) == run
+
+
+@pytest.mark.parametrize(("best", "source", "delivered"), [
+    ((60, 0.2), None, "ticket"), ((60, 0.2), "zero", "zero ticket"), ((50, 0.6), None, "base"),
+    ((70, 0.01), "zero", "zero ticket")])
+def test_summary_json_says_what_the_job_delivers(best, source, delivered):
+    from goldenticket.results import FoundTicket, SearchRun
+    from goldenticket.tickets import ZERO_SOURCE
+
+    def row(k, p=None):
+        return VerdictRow(Rate.counted(k, 100), p_vs_base=p)
+
+    found = FoundTicket("t", "t.safetensors", 0.5, row(*best), source=ZERO_SOURCE if source else None)
+    run = SearchRun("p", "cma-es", 0, 840, "budget", (1000000, 1000099))
+    summary = Summary("task", run, row(50), row(best[0] if source else 40, 0.5), (found,))
+    assert summary.deliver == delivered == summary.to_dict()["deliver"]

@@ -133,10 +133,12 @@ class Summary:
 
     @property
     def deliver(self) -> str:
-        """What the job delivers (`to_run`): "ticket" (the best), "zero ticket" or "base"."""
+        """What the job delivers (`to_run`): "ticket" (the best), "zero ticket" (also where the best
+        is the zero ticket) or "base"."""
         best = self.best.heldout
         rates = (best.rate.success_rate, self.zero.rate.success_rate, self.base.rate.success_rate)
-        return DELIVERED[to_run(*rates, best.golden)]
+        run = to_run(*rates, best.golden)
+        return DELIVERED["zero" if run == "best" and self.best.source == ZERO_SOURCE else run]
 
     @property
     def p_value_note(self) -> str:
