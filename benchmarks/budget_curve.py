@@ -4,7 +4,7 @@
     python benchmarks/budget_curve.py --budgets 850 --subspace full [--search-seeds 40]
     python benchmarks/budget_curve.py --budgets 850 --method gp            # another method
     python benchmarks/budget_curve.py --budgets 300 --validation-seeds 20  # 500 episodes in all
-    python benchmarks/budget_curve.py --budgets 850 --halving  # each generation raced by halving
+    python benchmarks/budget_curve.py --budgets 850 --halving  # search and validation halved
     python benchmarks/budget_curve.py --plot-only              # redraw budget_curve.png
 
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
@@ -33,8 +33,7 @@ from goldenticket.files import write_atomic
 
 ROWS = RESULTS / "budget_curve"
 SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {
-    "race": None, "population": None, "halving": False}  # what a point may change, with the defaults
-# (None: the method's)
+    "race": None, "population": None, "halving": False}  # what a point may change (None: the method's)
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
@@ -192,7 +191,7 @@ def markdown(points: list[dict]) -> str:
               f"{SETTINGS['heldout']} held-out seeds, the zero ticket beside them); search: the search "
               "seeds, the sub-space searched (full: every entry of the ticket; tiled: one action-sized "
               "vector repeated over the horizon), the method where it is not the default, the racing level "
-              "where tickets are raced (search `--race`), halved where each generation is raced by "
+              "where tickets are raced (search `--race`), halved where search and validation are raced by "
               "sequential halving (search `--halving`), the validation seeds where they are not "
               f"{SEARCH['validation_seeds']} and CMA-ES's tickets a generation where they are not 20; "
               "each pair's best ticket judged again on two ranges of 200 "
@@ -241,7 +240,7 @@ def main() -> None:
     parser.add_argument("--population", type=int, default=None,
                         help="tickets a generation, for the methods that have generations")
     parser.add_argument("--halving", action="store_true",
-                        help="race each generation by sequential halving (search --halving)")
+                        help="spend search and validation episodes by sequential halving (search --halving)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--plot-only", action="store_true", help="redraw budget_curve.png; run no episode")
     args = parser.parse_args()
