@@ -124,6 +124,22 @@ def test_a_run_with_halving_halves_its_method(monkeypatch):
     assert isinstance(built, Halved) and [len(b) for b in built.blocks] == [5, 5, 5, 5]
 
 
+def test_halving_validates_tickets_stopped_before_the_last_search_seed():
+    from goldenticket.job import stages
+    from goldenticket.ticket_search import Candidate, SearchResult
+
+    def cand(value, returns):
+        return Candidate(np.full((1, 1), value), list(range(len(returns))), returns, [r > 0 for r in returns])
+
+    stopped, finished = cand(0.9, [1.0] * 10), cand(0.5, [1.0] * 12 + [0.0] * 8)
+    result = SearchResult([stopped, finished], episodes_used=30, stopped_because="budget")
+    plan = SimpleNamespace(keys=tuple(range(20)), seeds=SimpleNamespace(validation=[1]),
+                           cfg=SimpleNamespace(top_k=1, halving=True))
+    assert stages.top_candidates(plan, result) == [stopped, finished]
+    plan.cfg.halving = False
+    assert stages.top_candidates(plan, result) == [finished]
+
+
 class Validating:
     """An evaluator for `stages.validate`: ticket t succeeds on seed s as in
     `succeeds_with_probability_ticket`; records each call's (tickets, seeds) and the bar's size."""

@@ -320,6 +320,18 @@ def test_top_breaks_ties_by_episodes_then_first_seen():
     assert result.top(5, min_episodes=2) == [c, b]
 
 
+def test_top_with_shrink_ranks_a_ticket_seen_on_few_seeds_by_less_than_its_mean():
+    def cand(value, returns):
+        return Candidate(np.full(SHAPE, value, np.float32), list(range(len(returns))), returns,
+                         [r > 0 for r in returns])
+
+    few, many, poor = cand(0, [1.0]), cand(1, [1.0] * 8 + [0.0] * 2), cand(2, [0.0] * 10)
+    result = SearchResult([few, many, poor], episodes_used=21, stopped_because="budget")
+    assert result.top(3) == [few, many, poor]  # by mean: 1.0, 0.8, 0.0
+    # the search's mean is 9 / 21: few scores (1 + 5 * 9 / 21) / 6 = 0.52, many (8 + 5 * 9 / 21) / 15 = 0.68
+    assert result.top(3, shrink=5) == [many, few, poor]
+
+
 def test_bad_inputs_raise_one_line_user_errors():
     rng = np.random.default_rng(0)
     bad = [

@@ -97,6 +97,8 @@ def search(plan: Plan, evaluator: Evaluator, optimizer: Optimizer,
 def top_candidates(plan: Plan, result: SearchResult) -> list:
     """The best search candidates: top_k, or 3 x top_k to choose from on validation seeds."""
     k = plan.cfg.top_k * (3 if plan.seeds.validation else 1)
+    if plan.cfg.halving:  # most tickets stopped before the last search seed: all ranked, their means shrunk
+        return result.top(k, shrink=RACE_BLOCK)
     return result.top(k, min_episodes=len(plan.keys)) or result.top(k)
 
 

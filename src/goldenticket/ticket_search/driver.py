@@ -57,13 +57,16 @@ class SearchResult:
     episodes_used: int
     stopped_because: str
 
-    def top(self, k: int, min_episodes: int | None = None) -> list[Candidate]:
-        """The k best candidates with at least `min_episodes` episodes, by mean return.
+    def top(self, k: int, min_episodes: int | None = None, shrink: int = 0) -> list[Candidate]:
+        """The k best candidates with at least `min_episodes` episodes, by mean return; with `shrink`,
+        by their mean return as if `shrink` more episodes had scored the search's mean return, so that
+        a ticket seen on few seeds ranks by less than its own mean.
 
         Ties go to the candidate with more episodes, then to the one seen first.
         """
         pool = [c for c in self.candidates if min_episodes is None or c.n >= min_episodes]
-        return sorted(pool, key=lambda c: (-c.mean_return, -c.n))[:k]
+        prior = shrink * float(np.mean([r for c in self.candidates for r in c.returns])) if shrink else 0.0
+        return sorted(pool, key=lambda c: (-(sum(c.returns) + prior) / (c.n + shrink), -c.n))[:k]
 
 
 def run_search(optimizer: Optimizer, evaluate: Callable[[list[Query]], list[EpisodeOutcome]],
