@@ -34,6 +34,7 @@ from goldenticket.files import write_atomic
 ROWS = RESULTS / "budget_curve"
 SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {
     "race": None, "population": None, "halving": False}  # what a point may change (None: the method's)
+DEFAULT = (SETTINGS["budget"], SEARCH | {"halving": SETTINGS["halving"]})  # the existence table's point
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
@@ -132,15 +133,15 @@ def kept_points() -> list[tuple[int, dict]]:
     the default search first, then by search and budget."""
     pairs, folders = len(weak_pairs()), ROWS.iterdir() if ROWS.exists() else []
     full = [point_of(d.name) for d in folders if len(list(d.glob("*.json"))) == pairs]
-    points = {folder_name(b, s): (b, s) for b, s in [(SETTINGS["budget"], SEARCH), *full]}
-    return sorted(points.values(), key=lambda p: (p[1] != SEARCH, search_label(p[1]), p[0]))
+    points = {folder_name(b, s): (b, s) for b, s in [DEFAULT, *full]}
+    return sorted(points.values(), key=lambda p: (p[1] != DEFAULT[1], search_label(p[1]), p[0]))
 
 
 def curve() -> list[dict]:
     """Per point: its targets and episodes (the default's from the existence table)."""
     points = []
     for budget, search in kept_points():
-        rows = weak_rows() if (budget, search) == (SETTINGS["budget"], SEARCH) else [
+        rows = weak_rows() if (budget, search) == DEFAULT else [
             json.loads(p.read_text()) for p in sorted((ROWS / folder_name(budget, search)).glob("*.json"))]
         points.append({"budget": budget} | search | target_summary(rows))
     return points
@@ -153,7 +154,7 @@ def searches(points: list[dict]) -> list[dict]:
 
 def command(search: dict, points: list[dict]) -> str:
     budgets = [p["budget"] for p in points if search_of(p) == search
-               and (p["budget"], search) != (SETTINGS["budget"], SEARCH)]
+               and (p["budget"], search) != DEFAULT]
     flags = "".join(f" --{k.replace('_', '-')}" + ("" if search[k] is True else f" {search[k]}")
                     for k in SEARCH if search[k] != SEARCH[k])
     return f"`python benchmarks/budget_curve.py --budgets {' '.join(map(str, budgets))}{flags}`"
@@ -161,7 +162,7 @@ def command(search: dict, points: list[dict]) -> str:
 
 def markdown(points: list[dict]) -> str:
     lines = ["Regenerate: " + ", ".join(command(s, points) for s in searches(points)) +
-             f" (the {SETTINGS['budget']}-episode point with {search_label(SEARCH)} is the existence "
+             f" (the {DEFAULT[0]}-episode point with {search_label(DEFAULT[1])} is the existence "
              "table).", "",
              "| search budget | search | search + validation episodes, mean (max) | seeds | significant "
              "vs base | vs zero | mean failure reduction | mean gain | below zero | below base |",
@@ -249,7 +250,7 @@ def main() -> None:
     search = {k: getattr(args, k) for k in SEARCH}
     if not args.plot_only:
         for budget in args.budgets:
-            if (budget, search) != (SETTINGS["budget"], SEARCH):
+            if (budget, search) != DEFAULT:
                 budget_rows(budget, search, args.workers)
     points = curve()
     record = {"settings": SETTINGS | {"weak_base": WEAK_BASE, "fresh_ranges": FRESH_RANGES}, "points": points}

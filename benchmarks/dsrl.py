@@ -16,8 +16,8 @@ workers (default 1: one core each, so two pairs can run side by side as two proc
 - DSRL-NA (noise aliasing, `dsrl_na.py`): the same SAC settings and budget, but the noise critic
   is distilled from an action-space critic that learns by TD over the executed chunks (NA); it
   trains `--na-minutes` (default: `--minutes`).
-- CEM and CMA-ES, the default search (goldenticket, paper defaults), at budgets BUDGETS,
-  each search timed from scratch; its top ticket judged on the same held-out seeds.
+- CEM and CMA-ES, every ticket on every search seed (goldenticket, paper defaults), at budgets
+  BUDGETS, each search timed from scratch; its top ticket judged on the same held-out seeds.
 
 Resumable: each pair's folder `--runs`/<task> keeps, per DSRL variant (a sub-folder), its model
 and replay buffer, the env's counters and the curve so far (rewritten after every checkpoint),
@@ -63,8 +63,7 @@ from goldenticket.tasks import get_task, seeds_in
 
 PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies with the lowest base
 VARIANTS = {"dsrl_sac": "DSRL-SAC", "dsrl_na": "DSRL-NA"}
-DEFAULT_SEARCH = SearchConfig("", "").method
-SEARCHES = ("cem", DEFAULT_SEARCH)
+SEARCHES = ("cem", "cma-es")
 RUNS = Path(__file__).parent / "runs" / "dsrl"
 NOISE_MAGNITUDE = 1.5
 # buffer_size: room for every transition of a run of hours (one per policy call), saved at each checkpoint
@@ -225,7 +224,7 @@ def search_point(task_name: str, method: str, budget: int, workers: int) -> dict
                            loaded=policy) as evaluator:
         start = time.perf_counter()
         cfg = SearchConfig(policy_name, task.name, method, budget, seed=0, search_seeds=SEARCH_SEEDS,
-                           subspace="full", stop_after_perfect=None)
+                           subspace="full", stop_after_perfect=None, halving=False)
         result = search_only(cfg, evaluator, policy)
         seconds = time.perf_counter() - start
         env_steps = sum(row.length for row in store.episodes())

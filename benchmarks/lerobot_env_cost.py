@@ -22,6 +22,7 @@ import numpy as np
 from results_files import write_results
 
 from goldenticket.config import SearchConfig
+from goldenticket.job.stages import VALIDATION_BLOCK, halving_sizes
 from goldenticket.tasks import get_task
 
 TASKS = ("libero/object/0", "pusht", "aloha/insertion")
@@ -31,8 +32,9 @@ EXECUTED = {"every step": 1, "diffusion (8)": 8, "SmolVLA (50)": 50}  # actions 
 def default_search_episodes() -> int:
     """Episodes of the default search, validation and verdict on one task."""
     cfg = SearchConfig(policy="any", task="pusht")
-    search = cfg.budget // cfg.search_seeds * cfg.search_seeds
-    validation = (3 * cfg.top_k + 1) * 40  # 3 x top_k tickets and the zero ticket on 40 validation seeds
+    search = cfg.budget  # halved, the default search spends it whole unless 3 tickets are perfect first
+    blocks = cfg.validation() // VALIDATION_BLOCK  # 3 x top_k tickets and the zero ticket, halved
+    validation = VALIDATION_BLOCK * sum(halving_sizes(3 * cfg.top_k + 1, cfg.top_k, blocks))
     verdict = (2 + cfg.top_k) * cfg.heldout  # base, zero ticket and top_k tickets
     return search + validation + verdict
 

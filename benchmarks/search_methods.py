@@ -51,7 +51,7 @@ def best_at(evaluator: Evaluator, policy_name: str, policy, label: str, budget: 
     method, params, objective = METHODS[label]
     cfg = SearchConfig(policy_name, evaluator.engine.task.name, method, budget, seed=0, optimizer=params,
                        search_seeds=SEARCH_SEEDS, subspace="full", objective=objective,
-                       stop_after_perfect=None)
+                       stop_after_perfect=None, halving=False)
     result = search_only(cfg, evaluator, policy)
     top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]
     ticket = Ticket(top.ticket, TicketRecord(policy_fingerprint=identity(policy)))

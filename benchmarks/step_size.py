@@ -73,9 +73,9 @@ def search(evaluator: Evaluator, name: str, policy, start: str) -> SearchResult:
 
 
 def searching(name: str, **settings) -> SearchConfig:
-    """The default search over the full ticket, CMA-ES with `settings`."""
+    """The search over the full ticket, CMA-ES with `settings`, every ticket on every search seed."""
     return replace(DEFAULTS, policy=name, task=name.rsplit("/", 1)[0], budget=BUDGET, subspace="full",
-                   optimizer=settings, validation_seeds=VALIDATION)
+                   optimizer=settings, validation_seeds=VALIDATION, halving=False)
 
 
 def delivered(evaluator: Evaluator, name: str, policy, start: str) -> tuple[Ticket, bool]:

@@ -38,7 +38,7 @@ MIXTURE_SEEDS = range(1_000_200, 1_000_400)
 def pareto(task: str, runs: Path, workers: int) -> dict:
     cfg = SearchConfig(f"metaworld/{task}/flow", f"metaworld/{task}", method="rs", budget=1000,
                        search_seeds=10, heldout=100, top_k=3, stop_after_perfect=None, workers=workers,
-                       front_objective="speed", validation_seeds=0)
+                       front_objective="speed", validation_seeds=0, halving=False)
     summary = find_golden_tickets(cfg, runs / f"pareto_{task}")
     return summary.front.to_dict() | {"summary": summary.to_dict()}
 

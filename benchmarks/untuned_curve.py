@@ -29,9 +29,10 @@ sys.path.insert(0, str(HERE.parent))  # the repository root: tickets name the ta
 from examples import fetch_push  # noqa: E402
 
 FRESH = range(1_005_000, 1_005_300)
-CURVE = {"cma-es, tiled, 850": {"budget": 850},  # searches the budget curve compares
-         "cma-es, tiled, 300, 20 validation seeds": {"budget": 300, "validation_seeds": 20},
-         "tiled-then-full, full, 1600": {"budget": 1600, "method": "tiled-then-full", "subspace": "full"},
+CURVE = {"cma-es, tiled, 850": {"budget": 850, "halving": False},  # searches the budget curve compares
+         "cma-es, tiled, 300, 20 validation seeds": {"budget": 300, "validation_seeds": 20, "halving": False},
+         "tiled-then-full, full, 1600": {"budget": 1600, "method": "tiled-then-full", "subspace": "full",
+                                         "halving": False},
          "cma-es, tiled, 1100, halved": {"budget": 1100, "halving": True},
          "cma-es, tiled, 350, halved": {"budget": 350, "halving": True}}
 TARGETS = {"fetch-push": ("fetch_push_curve", lambda: (fetch_push.make_policy(), fetch_push.make_env)),

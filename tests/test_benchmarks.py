@@ -75,10 +75,10 @@ def test_budget_curve_adds_kept_budgets_to_the_existence_tables_point(tmp_path, 
     (tmp_path / "2000").mkdir()
     (tmp_path / "2000" / "a.json").write_text(json.dumps(_row(0.5, 0.6, 0.9, 0.001, 0.01, spent=2400)))
     kept = [budget for budget, _ in budget_curve.kept_points()]
-    assert kept == [850]  # one of two pairs kept: not a point yet
+    assert kept == [1100]  # the defaults' point; of 2000, one of two pairs kept: not a point yet
     (tmp_path / "2000" / "b.json").write_text(json.dumps(_row(0.3, 0.3, 0.8, 0.001, 0.01, spent=2400)))
     points = budget_curve.curve()
-    assert [p["budget"] for p in points] == [850, 2000]
+    assert [(p["budget"], p["halving"]) for p in points] == [(1100, True), (2000, False)]
     assert points[0]["targets"]["fresh"]["mean_gain"] == pytest.approx(0.15)
     fresh = points[1]["targets"]["fresh"]
     assert fresh | {"failure_reduction": 0, "delivered": None} == {
@@ -103,8 +103,8 @@ def test_budget_curve_keeps_a_changed_search_apart_from_the_default(tmp_path, mo
     for pair in "ab":
         (tmp_path / name / f"{pair}.json").write_text(row)
     points = budget_curve.curve()
-    assert [(p["budget"], p["search_seeds"], p["subspace"]) for p in points] == [
-        (850, 20, "tiled"), (850, 40, "full")]
+    assert [(p["budget"], p["search_seeds"], p["subspace"], p["halving"]) for p in points] == [
+        (1100, 20, "tiled", True), (850, 40, "full", False)]
     table = budget_curve.markdown(points)
     assert "`python benchmarks/budget_curve.py --budgets 850 --search-seeds 40 --subspace full`" in table
     assert "| 850 | 40 seeds, full | 1250 (1250) | fresh seeds | 100% |" in table

@@ -65,7 +65,7 @@ def test_help_says_which_options_are_required_and_every_default():
     assert search["--policy"].endswith("(required)") and _helps("train")["--task"].endswith("(required)")
     assert search["--task"].endswith("(default in search: the task a bundled single-task policy was trained "
                                      "on)")
-    assert search["--budget"].endswith("(default: 850)") and search["--out"].endswith("(required)")
+    assert search["--budget"].endswith("(default: 1100)") and search["--out"].endswith("(required)")
     assert _helps("evaluate")["--seeds"].endswith("(default: 1000000:1000200)")
     assert _helps("demo")["--seed"].endswith("(default: 0)")
     for cls, words in ((SearchConfig, ("search",)), (config.SessionConfig, ("session", "new")),
@@ -108,8 +108,10 @@ def test_session_and_transfer_flags_are_their_config_fields(words, classes):
     own = {"-h", "--help", "--config", "--out"}
     flags = {s for a in _sub(*words)._actions for s in a.option_strings} - own
     skips = {"SearchConfig": cli.TRANSFER_SKIPS}
-    assert flags == {f.metadata["cli"].get("flag", flag(f.name)) for name in classes
-                     for f in cli_fields(getattr(config, name), skips.get(name, ()))}
+    fields_of = [f for name in classes for f in cli_fields(getattr(config, name), skips.get(name, ()))]
+    negated = {"--no-" + f.name.replace("_", "-") for f in fields_of  # a switch that is on by default
+               if f.metadata["cli"].get("action") is argparse.BooleanOptionalAction}
+    assert flags == {f.metadata["cli"].get("flag", flag(f.name)) for f in fields_of} | negated
 
 
 def test_session_new_plans_with_the_config_defaults(tmp_path, capsys):

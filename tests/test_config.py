@@ -1,5 +1,6 @@
 """One config behind the CLI and the API: generated flags, TOML files, the resolved config kept."""
 
+import argparse
 import json
 from dataclasses import fields
 from pathlib import Path
@@ -34,7 +35,9 @@ def _flags(command: str) -> set[str]:
 def test_every_field_is_a_flag_and_every_flag_a_field(command, cls):
     own = {"-h", "--help", "--config", "--out", "--plot", "--json"}
     expected = {f.metadata["cli"].get("flag", flag(f.name)) for f in cli_fields(cls)}
-    assert _flags(command) - own == expected and len(cli_fields(cls)) == len(fields(cls))
+    negated = {"--no-" + f.name.replace("_", "-") for f in cli_fields(cls)  # a switch that is on by default
+               if f.metadata["cli"].get("action") is argparse.BooleanOptionalAction}
+    assert _flags(command) - own == expected | negated and len(cli_fields(cls)) == len(fields(cls))
 
 
 def test_the_api_names_fields_and_the_command_line_names_flags(tmp_path, capsys):

@@ -134,9 +134,9 @@ def test_halving_validates_tickets_stopped_before_the_last_search_seed():
     stopped, finished = cand(0.9, [1.0] * 10), cand(0.5, [1.0] * 12 + [0.0] * 8)
     result = SearchResult([stopped, finished], episodes_used=30, stopped_because="budget")
     plan = SimpleNamespace(keys=tuple(range(20)), seeds=SimpleNamespace(validation=[1]),
-                           cfg=SimpleNamespace(top_k=1, halving=True))
+                           cfg=SimpleNamespace(top_k=1, halves=lambda: True))
     assert stages.top_candidates(plan, result) == [stopped, finished]
-    plan.cfg.halving = False
+    plan.cfg.halves = lambda: False
     assert stages.top_candidates(plan, result) == [finished]
 
 
@@ -168,7 +168,7 @@ def test_halved_validation_runs_the_better_half_on_the_next_seeds_while_more_tha
     tickets = [Ticket(np.full((1, 1), q), TicketRecord()) for q in qualities]
     seeds = list(range(500, 540))
     plan = SimpleNamespace(seeds=SimpleNamespace(validation=seeds), task_names=["t"],
-                           cfg=SimpleNamespace(halving=halving, top_k=3))
+                           cfg=SimpleNamespace(halves=lambda: halving, top_k=3))
     evaluator = Validating()
     validated = validate(plan, evaluator, tickets)
     ids = [t.id for t in tickets]

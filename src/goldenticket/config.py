@@ -10,6 +10,7 @@ that folder alone: `goldenticket search --config runs/x/config.toml`.
 
 from __future__ import annotations
 
+import argparse
 import functools
 import importlib
 import json
@@ -47,6 +48,7 @@ SUCCESS_HELP = ("Gymnasium tasks: package.module:function(obs, info) -> bool dec
 
 
 METHODS: dict[str, type] = {}  # a search method's name -> the dataclass of its settings
+SELF_RACING = ("cem-racing", "cem-bounds")  # methods that race their own tickets: no race, no halving
 
 
 def method(name: str):
@@ -225,9 +227,8 @@ class SearchConfig(EngineOptions):
     method: str = option("cma-es", "random search, CEM, zeroth-order search, CEM raced by halving "
                          "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES",
                          choices=tuple(METHODS))
-    budget: int = option(850, "search episodes to spend at most (per task for transfer); a ticket never "
-                         "runs on only some seeds, so the default search spends 840, and with the "
-                         "default validation at most 1240 episodes before the verdict")
+    budget: int = option(1100, "search episodes to spend at most (per task for transfer); with the "
+                         "default halving and validation, at most 1250 episodes before the verdict")
     seed: int = option(0, "seed of every random draw")
     search_seeds: int = option(20, "initial states to search on (per task)")
     heldout: int = option(200, "held-out initial states (per task) to judge base, zero ticket and tickets on")
@@ -243,11 +244,13 @@ class SearchConfig(EngineOptions):
                                 "seeds: it stops where a one-sided sign test on the seeds both ran says it "
                                 "is worse at p < RACE, e.g. 0.1 (not with cem-racing or cem-bounds, which "
                                 "race their own way; default: every ticket runs on every search seed)")
-    halving: bool = option(False, "spend episodes by sequential halving: each generation's tickets on the "
-                           "first 5 search seeds, the better half on the next 5, and so on, the last ones on "
-                           "every search seed (not with race, cem-racing or cem-bounds); and the tickets to "
-                           "validate on the first 10 validation seeds, the better half on the next 10, while "
-                           "that half is more than top_k", action="store_true")
+    halving: bool | None = option(None, "spend episodes by sequential halving: each generation's tickets on "
+                                  "the first 5 search seeds, the better half on the next 5, and so on, the "
+                                  "last ones on every search seed; and the tickets to validate on the first "
+                                  "10 validation seeds, the better half on the next 10, while that half is "
+                                  "more than top_k (default: on, unless race, cem-racing or cem-bounds races "
+                                  "the tickets; --no-halving: every ticket on every seed)",
+                                  action=argparse.BooleanOptionalAction)
     max_steps: int | None = option(None, "episode step limit (default: the task's, 150 for Meta-World)")
     success: str | Callable | None = option(None, SUCCESS_HELP)
     subspace: str = option("tiled", "what the search varies: tiled (one action-sized vector repeated over "
@@ -280,6 +283,13 @@ class SearchConfig(EngineOptions):
             object.__setattr__(self, "task", self.task[0] if len(self.task) == 1 else tuple(self.task))
         if self.stop_after_perfect == 0:
             object.__setattr__(self, "stop_after_perfect", None)
+
+    def halves(self) -> bool:
+        """Whether the run spends its episodes by sequential halving: `halving`, or by default unless
+        its tickets are raced (`race`, or a method that races its own)."""
+        if self.halving is not None:
+            return self.halving
+        return self.race is None and self.method not in SELF_RACING
 
     @property
     def tasks(self) -> tuple:
@@ -323,7 +333,7 @@ class SearchConfig(EngineOptions):
         if self.race is not None and self.halving:
             raise OptionError("race and halving are two ways to race; choose one", "race", "halving")
         raced = "race" if self.race is not None else "halving" if self.halving else None
-        if raced and self.method in ("cem-racing", "cem-bounds"):
+        if raced and self.method in SELF_RACING:
             raise OptionError(f"{self.method} races its own populations; {raced} is for the other methods",
                               raced, "method")
 

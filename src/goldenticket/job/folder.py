@@ -28,7 +28,8 @@ def open_store(out: str | Path, plan: Plan) -> RunStore:
     config = {f.name: getattr(cfg, f.name) for f in fields(cfg) if f.name not in ("max_nonfinite", "log")} | {
         "policy": names.policy, "task": names.task, "success": named(cfg.success),
         "policy_fingerprint": names.fingerprint,
-        "workers": None, "backend": None, "address": None}  # where episodes run does not change them
+        "workers": None, "backend": None, "address": None,  # where episodes run does not change them
+        "halving": cfg.halves()}
     for name in ("optimizer", "halving"):  # claimed as before they could be set, while unset
         if not config[name]:
             del config[name]

@@ -61,8 +61,8 @@ def optimizer(plan: Plan) -> Optimizer:
                                    cfg.settings())
     if cfg.race is not None:
         built = Raced(built, RACE_BLOCK, cfg.race)
-    elif cfg.halving:
-        built = Halved(built, RACE_BLOCK)
+    elif cfg.halves():  # on fewer search seeds than a block, one block: every ticket on every seed
+        built = Halved(built, min(RACE_BLOCK, len(plan.keys)))
     needed = len(copy.deepcopy(built).ask()[0].seeds)
     if cfg.budget < needed:
         raise OptionError(f"budget {cfg.budget} is too small: {cfg.method} needs {needed} episodes to score "
@@ -97,7 +97,7 @@ def search(plan: Plan, evaluator: Evaluator, optimizer: Optimizer,
 def top_candidates(plan: Plan, result: SearchResult) -> list:
     """The best search candidates: top_k, or 3 x top_k to choose from on validation seeds."""
     k = plan.cfg.top_k * (3 if plan.seeds.validation else 1)
-    if plan.cfg.halving:  # most tickets stopped before the last search seed: all ranked, their means shrunk
+    if plan.cfg.halves():  # most tickets stopped before the last search seed: all ranked, their means shrunk
         return result.top(k, shrink=RACE_BLOCK)
     return result.top(k, min_episodes=len(plan.keys)) or result.top(k)
 
@@ -121,7 +121,7 @@ def validate(plan: Plan, evaluator: Evaluator, tickets: list[Ticket], top_k: int
     better half goes on while that half is more than `top_k` (`halving_sizes`); each is scored on the
     seeds it ran."""
     seeds, tasks, k = plan.seeds.validation, plan.task_names, top_k or plan.cfg.top_k
-    block = VALIDATION_BLOCK if plan.cfg.halving else len(seeds)
+    block = VALIDATION_BLOCK if plan.cfg.halves() else len(seeds)
     blocks = [seeds[i : i + block] for i in range(0, len(seeds), block)]
     sizes = halving_sizes(len(tickets), k, len(blocks))
     returns: list[list[list[float]]] = [[[] for _ in tasks] for _ in tickets]  # ticket -> task -> returns
