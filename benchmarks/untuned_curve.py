@@ -51,7 +51,8 @@ def main() -> None:
     policy, task = make()
     results = {search: run(policy, task, runs / search.replace(", ", "_"), changed, args.workers)
                for search, changed in CURVE.items()}
-    said = "The `search` defaults where a search names nothing else (20 search, 40 validation seeds)"
+    said = ("Halved where a search says so, else every ticket on every seed; the `search` defaults where a "
+            "search names nothing else (20 search, 40 validation seeds)")
     write_results(name, results, report(results, f"{said}, {args.workers} workers."))
 
 

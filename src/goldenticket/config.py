@@ -331,7 +331,7 @@ class SearchConfig(EngineOptions):
         if self.race is not None and not 0 < self.race < 1:
             raise OptionError(f"race must be a level in (0, 1), e.g. 0.1, got {self.race}", "race")
         if self.race is not None and self.halving:
-            raise OptionError("race and halving are two ways to race; choose one", "race", "halving")
+            raise OptionError("race and halving cannot both be set; choose one", "race", "halving")
         raced = "race" if self.race is not None else "halving" if self.halving else None
         if raced and self.method in SELF_RACING:
             raise OptionError(f"{self.method} races its own populations; {raced} is for the other methods",
