@@ -88,6 +88,15 @@ def test_a_run_races_with_a_level_or_halves_and_not_a_self_racing_method(method,
                      halving=halving).check()
 
 
+@pytest.mark.parametrize(("options", "halves"),
+                         [({}, True), ({"budget": 1100}, True), ({"budget": 1101}, False),
+                          ({"budget": 4000, "halving": True}, True), ({"halving": False}, False),
+                          ({"race": 0.1}, False), ({"method": "cem-racing"}, False),
+                          ({"method": "gp"}, True)])
+def test_a_run_halves_by_default_up_to_1100_search_episodes_unless_its_tickets_race(options, halves):
+    assert SearchConfig("metaworld/reach-v3/flow", "metaworld/reach-v3", **options).halves() is halves
+
+
 def test_halving_runs_the_better_half_on_each_next_block_and_tells_what_each_ran():
     tickets = [round(0.05 * i, 2) for i in range(1, 21)]  # 20 tickets: the higher, the better
     inner, seen = Scripted(tickets), []

@@ -49,6 +49,7 @@ SUCCESS_HELP = ("Gymnasium tasks: package.module:function(obs, info) -> bool dec
 
 METHODS: dict[str, type] = {}  # a search method's name -> the dataclass of its settings
 SELF_RACING = ("cem-racing", "cem-bounds")  # methods that race their own tickets: no race, no halving
+HALVING_UP_TO = 1100  # search episodes up to which halving is the default (the budget curve's rule)
 
 
 def method(name: str):
@@ -248,8 +249,9 @@ class SearchConfig(EngineOptions):
                                   "the first 5 search seeds, the better half on the next 5, and so on, the "
                                   "last ones on every search seed; and the tickets to validate on the first "
                                   "10 validation seeds, the better half on the next 10, while that half is "
-                                  "more than top_k (default: on, unless race, cem-racing or cem-bounds races "
-                                  "the tickets; --no-halving: every ticket on every seed)",
+                                  "more than top_k (default: on where the budget is at most 1100 and no "
+                                  "race, cem-racing or cem-bounds races the tickets; --no-halving: every "
+                                  "ticket on every seed)",
                                   action=argparse.BooleanOptionalAction)
     max_steps: int | None = option(None, "episode step limit (default: the task's, 150 for Meta-World)")
     success: str | Callable | None = option(None, SUCCESS_HELP)
@@ -285,11 +287,12 @@ class SearchConfig(EngineOptions):
             object.__setattr__(self, "stop_after_perfect", None)
 
     def halves(self) -> bool:
-        """Whether the run spends its episodes by sequential halving: `halving`, or by default unless
-        its tickets are raced (`race`, or a method that races its own)."""
+        """Whether the run spends its episodes by sequential halving: `halving`, or by default where
+        the budget is at most HALVING_UP_TO and its tickets are not raced (`race`, or a method that
+        races its own)."""
         if self.halving is not None:
             return self.halving
-        return self.race is None and self.method not in SELF_RACING
+        return self.budget <= HALVING_UP_TO and self.race is None and self.method not in SELF_RACING
 
     @property
     def tasks(self) -> tuple:
