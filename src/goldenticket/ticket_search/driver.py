@@ -65,7 +65,9 @@ class SearchResult:
         Ties go to the candidate with more episodes, then to the one seen first.
         """
         pool = [c for c in self.candidates if min_episodes is None or c.n >= min_episodes]
-        prior = shrink * float(np.mean([r for c in self.candidates for r in c.returns])) if shrink else 0.0
+        if not shrink:
+            return sorted(pool, key=lambda c: (-c.mean_return, -c.n))[:k]
+        prior = shrink * float(np.mean([r for c in self.candidates for r in c.returns]))
         return sorted(pool, key=lambda c: (-(sum(c.returns) + prior) / (c.n + shrink), -c.n))[:k]
 
 
