@@ -32,9 +32,10 @@ EXECUTED = {"every step": 1, "diffusion (8)": 8, "SmolVLA (50)": 50}  # actions 
 def default_search_episodes() -> int:
     """Episodes of the default search, validation and verdict on one task."""
     cfg = SearchConfig(policy="any", task="pusht")
-    search = cfg.budget  # halved, the default search spends it whole unless 3 tickets are perfect first
-    blocks = cfg.validation() // VALIDATION_BLOCK  # 3 x top_k tickets and the zero ticket, halved
-    validation = VALIDATION_BLOCK * sum(halving_sizes(3 * cfg.top_k + 1, cfg.top_k, blocks))
+    halved = cfg.halves()  # halved, the search spends its budget whole unless 3 tickets are perfect first
+    search = cfg.budget if halved else cfg.budget // cfg.search_seeds * cfg.search_seeds
+    block = VALIDATION_BLOCK if halved else cfg.validation()  # 3 x top_k tickets and the zero ticket
+    validation = block * sum(halving_sizes(3 * cfg.top_k + 1, cfg.top_k, cfg.validation() // block))
     verdict = (2 + cfg.top_k) * cfg.heldout  # base, zero ticket and top_k tickets
     return search + validation + verdict
 

@@ -5,6 +5,7 @@ import argparse
 from dataclasses import MISSING, fields
 
 import pytest
+from test_config import field_flags
 
 import goldenticket
 from goldenticket import cli, config
@@ -108,10 +109,8 @@ def test_session_and_transfer_flags_are_their_config_fields(words, classes):
     own = {"-h", "--help", "--config", "--out"}
     flags = {s for a in _sub(*words)._actions for s in a.option_strings} - own
     skips = {"SearchConfig": cli.TRANSFER_SKIPS}
-    fields_of = [f for name in classes for f in cli_fields(getattr(config, name), skips.get(name, ()))]
-    negated = {"--no-" + f.name.replace("_", "-") for f in fields_of  # a switch that is on by default
-               if f.metadata["cli"].get("action") is argparse.BooleanOptionalAction}
-    assert flags == {f.metadata["cli"].get("flag", flag(f.name)) for f in fields_of} | negated
+    assert flags == field_flags(f for name in classes
+                                for f in cli_fields(getattr(config, name), skips.get(name, ())))
 
 
 def test_session_new_plans_with_the_config_defaults(tmp_path, capsys):
