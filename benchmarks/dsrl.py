@@ -1,6 +1,7 @@
 """DSRL-SAC and DSRL-NA against CEM and CMA-ES: held-out success against wall time and env steps.
 
     pip install -e ".[dsrl]" && python benchmarks/dsrl.py [--minutes 60] [--na-minutes M] [--pairs TASK ...]
+    robomimic-venv/bin/python benchmarks/dsrl.py --na-minutes 0 --pairs robomimic/lift  # robomimic's
 
 DSRL (diffusion steering by RL) trains SAC whose action is the frozen policy's initial noise,
 chosen per observation; goldenticket searches one constant noise. Both get the same bundled
@@ -11,13 +12,15 @@ workers (default 1: one core each, so two pairs can run side by side as two proc
 - DSRL-SAC (stable-baselines3, the DSRL authors' settings): actor and critic lr 3e-4, batch
   256, tau 0.005, gamma 0.99, 20 gradient steps per environment step (UTD 20), actions in
   [-1, 1] scaled to noise in [-1.5, 1.5]; one SAC step is one policy call (a chunk of actions),
-  reward 1 on success. Trained for `--minutes` of wall time per pair; every CHECKPOINT steps the
-  deterministic actor is judged on the held-out seeds (judging and saving time not counted).
+  reward 1 on success. Trained for `--minutes` of wall time per pair; every `Family.checkpoint`
+  steps the deterministic actor is judged on the held-out seeds (judging and saving time not counted).
 - DSRL-NA (noise aliasing, `dsrl_na.py`): the same SAC settings and budget, but the noise critic
   is distilled from an action-space critic that learns by TD over the executed chunks (NA); it
-  trains `--na-minutes` (default: `--minutes`).
-- CEM and CMA-ES, every ticket on every search seed (goldenticket, paper defaults), at budgets
-  BUDGETS, each search timed from scratch; its top ticket judged on the same held-out seeds.
+  trains `--na-minutes` (default: `--minutes`; 0: not run).
+- CEM and CMA-ES (goldenticket, paper defaults), at the family's budgets, each search timed from
+  scratch; its top ticket judged on the same held-out seeds. On Meta-World every ticket runs on
+  every search seed; on robomimic the searches halve as the defaults do, so CMA-ES at 1100 episodes
+  is the default search.
 
 Resumable: each pair's folder `--runs`/<task> keeps, per DSRL variant (a sub-folder), its model
 and replay buffer, the env's counters and the curve so far (rewritten after every checkpoint),
@@ -30,7 +33,8 @@ The report says whether each DSRL curve has plateaued (`plateaued`) and, against
 how long each side takes to first reach the other's best held-out success, with an interval
 from 95% Wilson bounds (`race`).
 
-Writes benchmarks/results/dsrl.{md,json,png} (`--no-write`: only prints the table). SAC trains
+Writes benchmarks/results/dsrl.{md,json,png}, robomimic's pairs dsrl_robomimic.{md,json,png}
+(`--no-write`: only prints the table). SAC trains
 in float32 torch: its numbers repeat on the same kind of CPU only (the searches' on any).
 """
 
@@ -42,6 +46,7 @@ import json
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
@@ -61,7 +66,8 @@ from goldenticket.stats import wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
 
-PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3")  # the flow policies with the lowest base
+# the flow policies with the lowest base: Meta-World's (the task's name) and robomimic's (robosuite's venv)
+PAIRS = ("pick-place-v3", "reach-v3", "drawer-open-v3", "robomimic/lift", "robomimic/can")
 VARIANTS = {"dsrl_sac": "DSRL-SAC", "dsrl_na": "DSRL-NA"}
 SEARCHES = ("cem", "cma-es")
 RUNS = Path(__file__).parent / "runs" / "dsrl"
@@ -72,9 +78,40 @@ SAC = dict(learning_rate=3e-4, batch_size=256, tau=0.005, gamma=0.99, train_freq
 # DSRL-NA: one distillation step of the noise critic per two TD steps (10 per env step at UTD 20, as
 # the DSRL authors' configuration)
 NA = dict(distill_every=2)
-CHECKPOINT = 400  # SAC steps between held-out judgements
-BUDGETS = (100, 300, 1000, 3000)
 SEARCH_SEEDS, HELDOUT = 20, 200
+
+
+@dataclass(frozen=True)
+class Family:
+    """What differs per simulator."""
+
+    checkpoint: int  # SAC steps between held-out judgements
+    budgets: tuple[int, ...]  # the searches' budgets, in episodes
+    halving: bool | None  # the searches' (None: the default rule, halved up to 1100 episodes)
+    results: str  # the results files' name
+    python: str  # the interpreter in the regenerating command
+
+
+# a robomimic judgement is 200 episodes of up to 400 steps, minutes on one core: it judges less often;
+# its searches follow the defaults' halving, so CMA-ES at 1100 episodes is the default search
+FAMILIES = {"metaworld": Family(400, (100, 300, 1000, 3000), False, "dsrl", "python"),
+            "robomimic": Family(2000, (100, 300, 1100), None, "dsrl_robomimic", "robomimic-venv/bin/python")}
+
+
+def family(pair: str) -> Family:
+    return FAMILIES["robomimic" if pair.startswith("robomimic/") else "metaworld"]
+
+
+def names(pair: str) -> tuple[str, str]:
+    """A pair's flow policy and its task."""
+    task = pair if pair.startswith("robomimic/") else f"metaworld/{pair}"
+    return f"{task}/flow", task
+
+
+def loaded(pair: str):
+    """A pair's flow policy, loaded, and its task."""
+    policy, task = names(pair)
+    return load_policy(policy), get_task(task)
 
 
 class NoiseSpaceEnv(gym.Env):
@@ -133,20 +170,20 @@ def heldout_success(policy, task) -> float:
     return float(np.mean([r.success for r in results]))
 
 
-def settings(workers: int) -> dict:
+def settings(workers: int, fam: Family) -> dict:
     """What a pair's folder is computed with (as JSON reads it back)."""
     return json.loads(json.dumps({"sac": SAC, "na": NA, "noise_magnitude": NOISE_MAGNITUDE,
-                                  "checkpoint": CHECKPOINT, "search_seeds": SEARCH_SEEDS, "heldout": HELDOUT,
-                                  "workers": workers}))
+                                  "checkpoint": fam.checkpoint, "search_seeds": SEARCH_SEEDS,
+                                  "heldout": HELDOUT, "workers": workers}))
 
 
-def check_settings(folder: Path, workers: int) -> None:
+def check_settings(folder: Path, workers: int, fam: Family) -> None:
     """Record the settings in `folder`, or raise UserError if it holds a run made with others."""
-    path = folder / "settings.json"
-    if path.exists() and json.loads(path.read_text()) != settings(workers):
+    path, mine = folder / "settings.json", settings(workers, fam)
+    if path.exists() and json.loads(path.read_text()) != mine:
         raise UserError(f"{folder} holds a run made with other settings (--workers included); name another "
                         "--runs folder or remove it")
-    write_atomic(path, json.dumps(settings(workers), indent=2) + "\n")
+    write_atomic(path, json.dumps(mine, indent=2) + "\n")
 
 
 def cached(path: Path, compute: Callable):
@@ -187,11 +224,11 @@ def dsrl_model(variant: str, env: NoiseSpaceEnv, path: Path | None):
     return algorithm("MlpPolicy", env, seed=0, device="cpu", **SAC, **attached, **built)
 
 
-def dsrl_curve(task_name: str, variant: str, minutes: float, folder: Path) -> list[dict]:
+def dsrl_curve(pair: str, variant: str, minutes: float, folder: Path) -> list[dict]:
     """A DSRL variant trained until `minutes` of wall time in total, resumed from `folder`'s last
     checkpoint (if any) and checkpointed there: (seconds, SAC steps, episodes, env steps, held-out
     success)."""
-    policy, task = load_policy(f"metaworld/{task_name}/flow"), get_task(f"metaworld/{task_name}")
+    policy, task = loaded(pair)
     env, saved = NoiseSpaceEnv(policy, task, seeds_in("search", SEARCH_SEEDS)), folder / "dsrl.json"
     if saved.exists():
         state = json.loads(saved.read_text())
@@ -205,26 +242,26 @@ def dsrl_curve(task_name: str, variant: str, minutes: float, folder: Path) -> li
     trained = curve[-1]["seconds"] if curve else 0.0
     while trained < 60 * minutes:
         start = time.perf_counter()
-        model.learn(CHECKPOINT, reset_num_timesteps=False)
+        model.learn(family(pair).checkpoint, reset_num_timesteps=False)
         trained += time.perf_counter() - start
         curve.append({"seconds": trained, "sac_steps": int(model.num_timesteps), "episodes": env.episodes,
                       "env_steps": env.env_steps,
                       "success": heldout_success(ActorNoise(policy, model), task)})
         save_checkpoint(folder, model, curve)
-        print(f"{VARIANTS[variant]} {task_name}: {curve[-1]}", flush=True)
+        print(f"{VARIANTS[variant]} {pair}: {curve[-1]}", flush=True)
     return curve
 
 
-def search_point(task_name: str, method: str, budget: int, workers: int) -> dict:
+def search_point(pair: str, method: str, budget: int, workers: int) -> dict:
     """One search of `budget` episodes timed from scratch; its top ticket judged on the held-out seeds."""
-    policy_name = f"metaworld/{task_name}/flow"
-    policy, task = load_policy(policy_name), get_task(f"metaworld/{task_name}")
+    policy_name = names(pair)[0]
+    policy, task = loaded(pair)
     with tempfile.TemporaryDirectory() as tmp, RunStore(Path(tmp) / "run.sqlite") as store, \
             Evaluator.open(policy_name, task, EngineOptions(workers=workers), store,
                            loaded=policy) as evaluator:
         start = time.perf_counter()
         cfg = SearchConfig(policy_name, task.name, method, budget, seed=0, search_seeds=SEARCH_SEEDS,
-                           subspace="full", stop_after_perfect=None, halving=False)
+                           subspace="full", stop_after_perfect=None, halving=family(pair).halving)
         result = search_only(cfg, evaluator, policy)
         seconds = time.perf_counter() - start
         env_steps = sum(row.length for row in store.episodes())
@@ -232,15 +269,15 @@ def search_point(task_name: str, method: str, budget: int, workers: int) -> dict
         judged = evaluator.run([("top", Constant(top.ticket), seeds_in("heldout", HELDOUT))])[0]
     point = {"budget": budget, "seconds": seconds, "env_steps": env_steps,
              "success": float(np.mean([r.success for r in judged]))}
-    print(f"{method} {task_name}: {point}", flush=True)
+    print(f"{method} {pair}: {point}", flush=True)
     return point
 
 
-def search_curve(task_name: str, method: str, workers: int, folder: Path) -> list[dict]:
+def search_curve(pair: str, method: str, workers: int, folder: Path) -> list[dict]:
     """The search at every budget, each point kept in `folder` once judged."""
-    return [cached(folder / f"{method}-{budget}.json", lambda budget=budget: search_point(task_name, method,
+    return [cached(folder / f"{method}-{budget}.json", lambda budget=budget: search_point(pair, method,
                                                                                            budget, workers))
-            for budget in BUDGETS]
+            for budget in family(pair).budgets]
 
 
 def plateaued(curve: list[dict], n: int) -> bool:
@@ -279,18 +316,23 @@ def race(dsrl: list[dict], search: list[dict], n: int) -> list[dict]:
     return rows
 
 
-def run_pair(task_name: str, minutes: dict[str, float], folder: Path, workers: int) -> dict:
+def trained(minutes: dict[str, float]) -> list[str]:
+    """The DSRL variants given any minutes."""
+    return [variant for variant in VARIANTS if minutes[variant] > 0]
+
+
+def run_pair(pair: str, minutes: dict[str, float], folder: Path, workers: int) -> dict:
     """One pair's base, DSRL and search curves (resumed from and kept in `folder`) and verdicts;
-    `minutes`: each DSRL variant's training time."""
-    check_settings(folder, workers)
-    base = cached(folder / "base.json", lambda: heldout_success(load_policy(f"metaworld/{task_name}/flow"),
-                                                                get_task(f"metaworld/{task_name}")))
-    result = {"base": base} | {variant: dsrl_curve(task_name, variant, minutes[variant], folder / variant)
-                               for variant in VARIANTS}
-    result |= {method: search_curve(task_name, method, workers, folder) for method in SEARCHES}
-    return result | {"plateaued": {variant: plateaued(result[variant], HELDOUT) for variant in VARIANTS},
+    `minutes`: each DSRL variant's training time (0: not run)."""
+    check_settings(folder, workers, family(pair))
+    base = cached(folder / "base.json", lambda: heldout_success(*loaded(pair)))
+    variants = trained(minutes)
+    result = {"base": base} | {variant: dsrl_curve(pair, variant, minutes[variant], folder / variant)
+                               for variant in variants}
+    result |= {method: search_curve(pair, method, workers, folder) for method in SEARCHES}
+    return result | {"plateaued": {variant: plateaued(result[variant], HELDOUT) for variant in variants},
                      "race": {variant: {method: race(result[variant], result[method], HELDOUT)
-                                        for method in SEARCHES} for variant in VARIANTS}}
+                                        for method in SEARCHES} for variant in variants}}
 
 
 def span(values: list[float | None], form: str) -> str:
@@ -300,6 +342,9 @@ def span(values: list[float | None], form: str) -> str:
 
 
 def markdown(results: dict, minutes: dict[str, float]) -> str:
+    """The pairs' table (one family's) and their races."""
+    fam, variants = family(next(iter(results))), {v: VARIANTS[v] for v in trained(minutes)}
+
     def cells(curve):
         return "<br>".join(f"{p['budget']}: {p['seconds']:.0f} s, {p['env_steps']}, {p['success']:.0%}"
                            for p in curve)
@@ -309,28 +354,29 @@ def markdown(results: dict, minutes: dict[str, float]) -> str:
         return f"{top['success']:.0%} ({top['seconds']:.0f} s, {top['sac_steps']} steps, {top['env_steps']})"
 
     na = "" if minutes["dsrl_na"] == minutes["dsrl_sac"] else f" --na-minutes {minutes['dsrl_na']:g}"
-    lines = [f"Regenerate: `python benchmarks/dsrl.py --minutes {minutes['dsrl_sac']:g}{na} --pairs "
+    lines = [f"Regenerate: `{fam.python} benchmarks/dsrl.py --minutes {minutes['dsrl_sac']:g}{na} --pairs "
              f"{' '.join(results)}` (resumes from benchmarks/runs/dsrl/).", "",
              "| task (flow policy) | base | " + " | ".join(
-                 f"{name} best (at s, SAC steps, env steps) | plateaued" for name in VARIANTS.values())
+                 f"{name} best (at s, SAC steps, env steps) | plateaued" for name in variants.values())
              + " | " + " | ".join(f"{m.upper()}: budget, s, env steps, success" for m in SEARCHES) + " |",
-             "|---|---|" + "---|---|" * len(VARIANTS) + "---|" * len(SEARCHES)]
+             "|---|---|" + "---|---|" * len(variants) + "---|" * len(SEARCHES)]
     for task, r in results.items():
         lines.append(f"| {task} | {r['base']:.0%} | " + " | ".join(
-            f"{best(r[v])} | {'yes' if r['plateaued'][v] else 'no'}" for v in VARIANTS)
+            f"{best(r[v])} | {'yes' if r['plateaued'][v] else 'no'}" for v in variants)
             + " | " + " | ".join(cells(r[m]) for m in SEARCHES) + " |")
     lines += ["", "| task | DSRL | search | target: best held-out success of | DSRL, s | search, s | "
               "speed-up (DSRL s / search s) |", "|---|---|---|---|---|---|---|"]
     for task, r in results.items():
-        for variant, name in VARIANTS.items():
+        for variant, name in variants.items():
             for method, rows in r["race"][variant].items():
                 for owner, row in zip((name, method.upper()), rows, strict=True):
                     seconds = (span(row[side], "{:.0f} s") for side in ("dsrl_seconds", "search_seconds"))
                     lines.append(f"| {task} | {name} | {method.upper()} | {owner}, {row['target']:.0%} | "
                                  + " | ".join(seconds) + f" | {span(row['speedup'], '{:.2g}x')} |")
-    trained = " and ".join(f"{name} {minutes[variant]:g} min" for variant, name in VARIANTS.items())
-    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; trained per pair: {trained}, judged every "
-              f"{CHECKPOINT} SAC steps; each search timed from scratch at each "
+    spent = " and ".join(f"{name} {minutes[variant]:g} min" for variant, name in variants.items())
+    halved = " (halved up to 1100 episodes, as the defaults)" if fam.halving is None else ""
+    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; trained per pair: {spent}, judged every "
+              f"{fam.checkpoint} SAC steps; each search{halved} timed from scratch at each "
               "budget. Plateaued: with 3 checkpoints or more, the best success before the last third of them "
               "is inside the 95% Wilson interval of the overall best (the last third gained nothing beyond "
               "sampling noise). Seconds to a target: the owner's are those of its best checkpoint or budget; "
@@ -343,10 +389,12 @@ def plot(results: dict, path: Path) -> None:
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(5 * len(results), 4))
-    names = VARIANTS | {method: method.upper() for method in SEARCHES}
+    styles = dict(zip((*VARIANTS, *SEARCHES), ("-o", "-D", "-s", "--^"), strict=True))
+    labels = VARIANTS | {method: method.upper() for method in SEARCHES}
     for ax, (task, r) in zip(np.atleast_1d(fig.subplots(1, len(results))), results.items(), strict=True):
-        for (name, label), style in zip(names.items(), ("-o", "-D", "-s", "--^"), strict=True):
-            ax.plot([p["seconds"] for p in r[name]], [p["success"] for p in r[name]], style, label=label)
+        for name in (name for name in labels if name in r):  # a DSRL variant not trained is absent
+            ax.plot([p["seconds"] for p in r[name]], [p["success"] for p in r[name]], styles[name],
+                    label=labels[name])
         ax.axhline(r["base"], color="0.45", linestyle="--", label="base")
         ax.set(xscale="log", title=f"{task} (flow)", xlabel="wall time, s", ylim=(0, 1),
                ylabel=f"held-out success ({HELDOUT})")
@@ -360,9 +408,9 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=60.0,
                         help="each DSRL variant's training time per pair, in total over resumed runs")
     parser.add_argument("--na-minutes", type=float,
-                        help="DSRL-NA's training time per pair instead (default: --minutes)")
+                        help="DSRL-NA's training time per pair instead (default: --minutes; 0: not run)")
     parser.add_argument("--pairs", nargs="+", choices=PAIRS, default=PAIRS[:2], metavar="TASK",
-                        help=f"tasks to run, of: {', '.join(PAIRS)} (default: the first two)")
+                        help=f"tasks to run, of one simulator: {', '.join(PAIRS)} (default: the first two)")
     parser.add_argument("--runs", type=Path, default=RUNS, help="folder of the pairs' resumable runs")
     parser.add_argument("--workers", type=int, default=1,
                         help="SAC's torch threads and the searches' workers (default: 1)")
@@ -370,8 +418,12 @@ def main() -> None:
     args = parser.parse_args()
     na = args.minutes if args.na_minutes is None else args.na_minutes
     minutes = {"dsrl_sac": args.minutes, "dsrl_na": na}
-    if min(minutes.values()) <= 0 or args.workers < 1:
-        parser.error("--minutes and --na-minutes must be > 0 and --workers >= 1")
+    if args.minutes <= 0 or na < 0 or args.workers < 1:
+        parser.error("--minutes must be > 0, --na-minutes >= 0 and --workers >= 1")
+    families = {family(pair) for pair in args.pairs}
+    if len(families) > 1:
+        parser.error("--pairs: Meta-World's and robomimic's run in venvs of their own; give one simulator's")
+    fam = families.pop()
     torch.set_num_threads(args.workers)
     try:
         results = {task: run_pair(task, minutes, args.runs / task, args.workers) for task in args.pairs}
@@ -381,9 +433,9 @@ def main() -> None:
     if args.no_write:
         print(text)
         return
-    record = {"settings": settings(args.workers) | {"budgets": BUDGETS, "minutes": minutes},
-              "results": results}
-    write_results("dsrl", record, text, lambda path: plot(results, path))
+    record = {"settings": settings(args.workers, fam) | {"budgets": fam.budgets, "halving": fam.halving,
+                                                         "minutes": minutes}, "results": results}
+    write_results(fam.results, record, text, lambda path: plot(results, path))
 
 
 if __name__ == "__main__":

@@ -250,6 +250,12 @@ def test_dsrl_race_times_each_side_to_the_others_best_with_wilson_bounds():
     assert "| DSRL-SAC | CMA-ES | DSRL-SAC, 70% | 300 s | not reached (10 s to not reached) | " \
            "not reached (not reached to 30x) |" in table
     assert "| DSRL-NA | CMA-ES | CMA-ES, 64% | not reached | 20 s | not reached |" in table
+    sac_only = {k: v for k, v in pair.items() if k != "dsrl_na"} | {
+        "plateaued": {"dsrl_sac": False}, "race": {"dsrl_sac": races["dsrl_sac"]}}
+    table = dsrl.markdown({"robomimic/can": sac_only}, minutes={"dsrl_sac": 60, "dsrl_na": 0})
+    assert "`robomimic-venv/bin/python benchmarks/dsrl.py --minutes 60 --na-minutes 0 --pairs robomimic/can`" \
+        in table and "DSRL-NA" not in table and "judged every 2000 SAC steps" in table
+    assert "| robomimic/can | 50% | 70% (300 s, 30 steps, 3000) | no | 100: " in table
 
 
 def test_dsrl_plateau_means_the_last_third_of_checkpoints_gained_nothing_beyond_noise():
@@ -264,13 +270,30 @@ def test_dsrl_runs_folder_keeps_settings_and_search_points(tmp_path, monkeypatch
     calls = []
     assert dsrl.cached(tmp_path / "p.json", lambda: calls.append(1) or {"success": 0.5}) == {"success": 0.5}
     assert dsrl.cached(tmp_path / "p.json", lambda: calls.append(1)) == {"success": 0.5} and calls == [1]
-    dsrl.check_settings(tmp_path, workers=1)
-    dsrl.check_settings(tmp_path, workers=1)
+    metaworld, robomimic = dsrl.FAMILIES["metaworld"], dsrl.FAMILIES["robomimic"]
+    dsrl.check_settings(tmp_path, 1, metaworld)
+    dsrl.check_settings(tmp_path, 1, metaworld)
     with pytest.raises(UserError, match="other settings"):
-        dsrl.check_settings(tmp_path, workers=2)  # its seconds were measured on one core
+        dsrl.check_settings(tmp_path, 2, metaworld)  # its seconds were measured on one core
+    with pytest.raises(UserError, match="other settings"):
+        dsrl.check_settings(tmp_path, 1, robomimic)  # judged at other steps
     monkeypatch.setattr(dsrl, "HELDOUT", dsrl.HELDOUT + 1)
     with pytest.raises(UserError, match="other settings"):
-        dsrl.check_settings(tmp_path, workers=1)
+        dsrl.check_settings(tmp_path, 1, metaworld)
+
+
+def test_dsrl_pairs_name_their_policy_task_and_family():
+    assert dsrl.names("reach-v3") == ("metaworld/reach-v3/flow", "metaworld/reach-v3")
+    assert dsrl.names("robomimic/can") == ("robomimic/can/flow", "robomimic/can")
+    assert dsrl.family("reach-v3").results == "dsrl" and dsrl.family("robomimic/can").results == "dsrl_robomimic"
+    assert dsrl.family("robomimic/lift").halving is None and dsrl.family("reach-v3").halving is False
+
+
+def test_dsrl_takes_one_simulators_pairs(monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["dsrl.py", "--pairs", "reach-v3", "robomimic/lift"])
+    with pytest.raises(SystemExit) as exit_:
+        dsrl.main()
+    assert exit_.value.code == 2 and "give one simulator's" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -278,7 +301,8 @@ def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, m
                                                                       one_torch_thread):
     from stable_baselines3.common.save_util import load_from_pkl
 
-    small = {"SAC": dsrl.SAC | QUICK_SAC, "CHECKPOINT": 20, "HELDOUT": 3, "SEARCH_SEEDS": 3, "BUDGETS": (20,)}
+    small = {"SAC": dsrl.SAC | QUICK_SAC, "HELDOUT": 3, "SEARCH_SEEDS": 3, "FAMILIES": dsrl.FAMILIES | {
+        "metaworld": dsrl.Family(20, (20,), False, "dsrl", "python")}}
     for name, value in small.items():
         monkeypatch.setattr(dsrl, name, value)
     folder = tmp_path / "reach-v3"
@@ -295,11 +319,11 @@ def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, m
         monkeypatch.setattr(dsrl, "heldout_success", judge)
         minutes = first[-1]["seconds"] / 60 * 1.001  # one more checkpoint
         curves[variant] = resumed = dsrl.dsrl_curve("reach-v3", variant, minutes, folder / variant)
-        assert resumed[0] == first[0] and resumed[1]["sac_steps"] == 2 * dsrl.CHECKPOINT
+        assert resumed[0] == first[0] and resumed[1]["sac_steps"] == 2 * 20
         assert resumed[1]["seconds"] > first[0]["seconds"] and resumed[1]["env_steps"] > first[0]["env_steps"]
         assert resumed[1]["episodes"] > first[0]["episodes"]
         assert sorted(p.name for p in (folder / variant).glob("*-*.*")) == ["replay-40.pkl", "sac-40.zip"]
-        assert load_from_pkl(folder / variant / "replay-40.pkl").pos == 2 * dsrl.CHECKPOINT  # carried over
+        assert load_from_pkl(folder / variant / "replay-40.pkl").pos == 2 * 20  # carried over
     minutes = min(curve[-1]["seconds"] for curve in curves.values()) / 60 * 0.999  # both trained longer
     monkeypatch.setattr(dsrl, "ActorNoise", interrupt)  # trained long enough: neither trains nor judges
     monkeypatch.setattr(dsrl, "write_results", interrupt)

@@ -132,3 +132,21 @@ def test_a_policy_for_another_observation_size_is_one_line(tmp_path, capsys, unc
     assert len(errors) == 1 and "19" in errors[0]
     if policy == "dppo":
         assert "sees DPPO's low-dim state [B, 10], got [2, 19]" in errors[0]
+
+
+def test_dsrl_steers_cans_flow_policy_through_the_noise_space():
+    """benchmarks/dsrl.py on a robomimic pair: one action is a chunk's initial noise, run in robosuite."""
+    import dsrl
+
+    from goldenticket.tasks import seeds_in
+
+    policy, task = dsrl.loaded("robomimic/can")
+    env = dsrl.NoiseSpaceEnv(policy, get_task(task.name, max_steps=6), seeds_in("search", 2))
+    obs, _ = env.reset()
+    assert obs.shape == env.observation_space.shape == (23,)
+    assert env.action_space.shape == (policy.noise_shape[0] * policy.noise_shape[1],)
+    for steps in (policy.n_exec, 6):  # the second chunk stops at the episode's end
+        obs, reward, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape, np.float32))
+        assert env.env_steps == steps and reward == 0.0 and not terminated
+    assert truncated
+    assert env.reset()[0].shape == (23,) and env.episodes == 2
