@@ -97,6 +97,20 @@ def test_a_run_halves_by_default_up_to_1100_search_episodes_unless_its_tickets_r
     assert SearchConfig("metaworld/reach-v3/flow", "metaworld/reach-v3", **options).halves() is halves
 
 
+def test_the_race_and_halving_help_names_the_block_sizes_and_the_budget_rule():
+    from dataclasses import fields
+
+    from goldenticket.config import HALVING_UP_TO
+    from goldenticket.job.stages import VALIDATION_BLOCK
+    from goldenticket.ticket_search.racing import RACE_BLOCK
+
+    helps = {f.name: f.metadata["help"] for f in fields(SearchConfig) if f.name in ("race", "halving")}
+    assert f"blocks of {RACE_BLOCK} search seeds" in helps["race"]
+    assert f"first {RACE_BLOCK} search seeds, the better half on the next {RACE_BLOCK}" in helps["halving"]
+    assert f"first {VALIDATION_BLOCK} validation seeds, the better half on the next {VALIDATION_BLOCK}" \
+        in helps["halving"] and f"at most {HALVING_UP_TO} and" in helps["halving"]
+
+
 def test_halving_runs_the_better_half_on_each_next_block_and_tells_what_each_ran():
     tickets = [round(0.05 * i, 2) for i in range(1, 21)]  # 20 tickets: the higher, the better
     inner, seen = Scripted(tickets), []
