@@ -253,8 +253,8 @@ def test_dsrl_race_times_each_side_to_the_others_best_with_wilson_bounds():
     sac_only = {k: v for k, v in pair.items() if k != "dsrl_na"} | {
         "plateaued": {"dsrl_sac": False}, "race": {"dsrl_sac": races["dsrl_sac"]}}
     table = dsrl.markdown({"robomimic/can": sac_only}, minutes={"dsrl_sac": 60, "dsrl_na": 0})
-    assert "`robomimic-venv/bin/python benchmarks/dsrl.py --minutes 60 --na-minutes 0 --pairs robomimic/can`" \
-        in table and "DSRL-NA" not in table and "judged every 2000 SAC steps" in table
+    command = "robomimic-venv/bin/python benchmarks/dsrl.py --minutes 60 --na-minutes 0 --pairs robomimic/can"
+    assert f"`{command}`" in table and "DSRL-NA" not in table and "judged every 2000 SAC steps" in table
     assert "| robomimic/can | 50% | 70% (300 s, 30 steps, 3000) | no | 100: " in table
 
 
@@ -285,7 +285,8 @@ def test_dsrl_runs_folder_keeps_settings_and_search_points(tmp_path, monkeypatch
 def test_dsrl_pairs_name_their_policy_task_and_family():
     assert dsrl.names("reach-v3") == ("metaworld/reach-v3/flow", "metaworld/reach-v3")
     assert dsrl.names("robomimic/can") == ("robomimic/can/flow", "robomimic/can")
-    assert dsrl.family("reach-v3").results == "dsrl" and dsrl.family("robomimic/can").results == "dsrl_robomimic"
+    assert dsrl.family("reach-v3").results == "dsrl"
+    assert dsrl.family("robomimic/can").results == "dsrl_robomimic"
     assert dsrl.family("robomimic/lift").halving is None and dsrl.family("reach-v3").halving is False
 
 

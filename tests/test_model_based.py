@@ -56,6 +56,21 @@ def test_the_same_rng_seed_gives_the_same_queries_and_leaves_global_random_state
     assert first != [(q.ticket.tobytes(), q.seeds) for q in asked(method, 4)]
 
 
+def test_a_search_says_no_line_per_ticket_and_leaves_optunas_log_level_as_it_was(caplog):
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.INFO)
+    optuna.logging.enable_propagation()
+    try:
+        with caplog.at_level("INFO", logger="optuna"):
+            asked("tpe", 3)
+            assert optuna.logging.get_verbosity() == optuna.logging.INFO  # (caplog restores it on exit)
+    finally:
+        optuna.logging.disable_propagation()
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+    assert not [r for r in caplog.records if r.name.startswith("optuna")]
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_w_0_first_then_tickets_within_the_bound_on_every_search_seed(method):
     queries = asked(method, 0, bound=0.5)

@@ -10,6 +10,7 @@ before asking again. Each method's settings, with their defaults, are its datacl
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -426,12 +427,12 @@ class _ModelBased(_Base):
         _require(s.num_tickets is None or s.num_tickets >= 1,
                  f"num_tickets must be >= 1, got {s.num_tickets}")
         self.settings, self.asked, self._trials = s, 0, []
-        optuna.logging.set_verbosity(optuna.logging.WARNING)  # no line per scored ticket
         self._names = [f"w{i}" for i in range(math.prod(self.noise_shape))]
         low = NormalDist().cdf(-s.bound)
         self._space = dict.fromkeys(self._names, optuna.distributions.FloatDistribution(low, 1 - low))
         sampler = self._sampler(optuna, int(rng.integers(2**31)))
-        self._study = optuna.create_study(direction="maximize", sampler=sampler)
+        with quiet_optuna():
+            self._study = optuna.create_study(direction="maximize", sampler=sampler)
         if s.start_at_zero:
             self._study.enqueue_trial(dict.fromkeys(self._names, 0.5))
 
@@ -448,8 +449,22 @@ class _ModelBased(_Base):
                              for t in self._trials)
 
     def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
-        for trial, r in zip(self._trials, returns, strict=True):
-            self._study.tell(trial, float(np.mean(r)))
+        with quiet_optuna():
+            for trial, r in zip(self._trials, returns, strict=True):
+                self._study.tell(trial, float(np.mean(r)))
+
+
+@contextlib.contextmanager
+def quiet_optuna():
+    """Optuna's log at WARNING inside (no line per scored ticket); the caller's level after."""
+    import optuna
+
+    level = optuna.logging.get_verbosity()
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    try:
+        yield
+    finally:
+        optuna.logging.set_verbosity(level)
 
 
 class TPE(_ModelBased):
