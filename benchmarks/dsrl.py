@@ -34,8 +34,8 @@ how long each side takes to first reach the other's best held-out success, with 
 from 95% Wilson bounds (`race`).
 
 Writes benchmarks/results/dsrl.{md,json,png}, robomimic's pairs dsrl_robomimic.{md,json,png}
-(`--no-write`: only prints the table). SAC trains
-in float32 torch: its numbers repeat on the same kind of CPU only (the searches' on any).
+(`--no-write`: only prints the table). SAC trains in float32 torch: its numbers repeat on the
+same kind of CPU only (the searches' on any).
 """
 
 from __future__ import annotations
