@@ -98,6 +98,18 @@ def test_a_worker_that_dies_ends_the_run_in_one_line_keeping_the_shards_before(t
             ("base", 16)]
 
 
+def test_a_worker_whose_main_process_has_gone_ends_quietly():
+    """Its answers have nowhere to go (the main process was killed): no traceback, it just ends."""
+    import pickle
+
+    from goldenticket.local_pool import _serve
+
+    main_end, worker_end = mp.Pipe()
+    main_end.send((abs, -1))  # a shard was sent, then the main process went
+    main_end.close()
+    _serve(worker_end, pickle.dumps((int, ())))
+
+
 @pytest.mark.slow
 def test_a_worker_that_cannot_build_the_policy_ends_the_run_in_one_line():
     proc = _driven("evaluate_in_workers_that_cannot_start()")

@@ -147,5 +147,7 @@ def _serve(conn, payload: bytes) -> None:
 def _answer(conn, result, error: BaseException | None) -> None:
     try:
         conn.send((result, error))
+    except (BrokenPipeError, ConnectionResetError):  # the main process has gone: nobody to tell
+        return
     except Exception as exc:  # what fn returned or raised cannot be pickled
         conn.send((None, UserError(f"a worker process could not send back its answer: {_first_line(exc)}")))
