@@ -4,6 +4,7 @@
     python benchmarks/existence.py --ship     # also copy golden tickets beside the bundled policies
     python benchmarks/existence.py --plot-only  # redraw existence.png from existence.json
     robomimic-venv/bin/python benchmarks/existence.py --robomimic [lift can] [--ship]  # robomimic's pairs
+    ... --robomimic can --policies ddim@2      # one policy's pairs (the others' rows are kept)
 
 
 One pair is a bundled policy on its task: flow (10 Euler steps), DDIM with 8 steps and DDIM
@@ -358,6 +359,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, default=HERE / "runs", help="resumable run folders")
     parser.add_argument("--only", nargs="*", choices=MT10, default=list(MT10), help="tasks")
+    parser.add_argument("--policies", nargs="+", choices=POLICIES, default=list(POLICIES),
+                        help="of each task's pairs, these policies' only (a partial Meta-World table is only "
+                             "printed; robomimic's keeps the other pairs' committed rows)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--ship", action="store_true", help="copy golden tickets into the package")
     parser.add_argument("--robomimic", nargs="*", default=None, metavar="TASK",
@@ -374,6 +378,7 @@ def main() -> None:
     robomimic = args.robomimic is not None
     todo = robomimic_pairs([f"robomimic/{t}" for t in args.robomimic or ROBOMIMIC]) if robomimic else \
         pairs(args.only)
+    todo = [(task, policy) for task, policy in todo if policy.rsplit("/", 1)[1] in args.policies]
     for i, (task, policy) in enumerate(todo, 1):
         print(f"[{i}/{len(todo)}] {policy}", flush=True)
         changed = EARLIER_DEFAULTS if robomimic else {}
@@ -385,7 +390,7 @@ def main() -> None:
     rows = [table_row(s) for s in summaries]
     summary = summary_rows(rows)
     wall = time.perf_counter() - start
-    if args.only != list(MT10):  # a partial table never overwrites the committed results
+    if args.only != list(MT10) or args.policies != list(POLICIES):  # a partial table is only printed
         print(markdown(rows, summary, wall))
         return
     record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,

@@ -368,3 +368,13 @@ def test_a_robomimic_run_replaces_its_pairs_rows_and_keeps_the_others(tmp_path, 
         ("robomimic/lift", 0.8), ("robomimic/can", 0.6)]
     assert record["wall_time_s"] == 1200
     assert "lift flow 10 min, can flow 10 min." in (tmp_path / "robomimic_existence.md").read_text()
+
+
+def test_existence_runs_only_the_policies_asked_for(monkeypatch):
+    ran = []
+    monkeypatch.setattr(existence, "run_pair", lambda task, policy, *rest, **kw: ran.append(policy) or {})
+    monkeypatch.setattr(existence, "table_row", lambda summary: summary)
+    monkeypatch.setattr(existence, "write_robomimic", lambda *args: None)
+    monkeypatch.setattr(sys, "argv", ["existence.py", "--robomimic", "can", "--policies", "ddim@2"])
+    existence.main()
+    assert ran == ["robomimic/can/ddim@2"]
