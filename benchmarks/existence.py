@@ -338,10 +338,11 @@ def keep_best_tickets(summaries: list[dict], folder: Path) -> None:
 
 def ship(summaries: list[dict]) -> int:
     """Replace the bundled tickets of this run's policies with its golden ones (each with its fresh
-    check); other policies' tickets stay."""
+    check); other policies' tickets stay, those of the same weights with other steps too."""
     for s in summaries:
         for old in (BUNDLED_DIR / split_steps(s["policy"])[0] / "tickets").glob("*.safetensors"):
-            old.unlink()
+            if Ticket.load(old).record.policy == s["policy"]:
+                old.unlink()
     shipped = 0
     for s in summaries:
         best = s["best"]

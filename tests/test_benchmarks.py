@@ -378,3 +378,19 @@ def test_existence_runs_only_the_policies_asked_for(monkeypatch):
     monkeypatch.setattr(sys, "argv", ["existence.py", "--robomimic", "can", "--policies", "ddim@2"])
     existence.main()
     assert ran == ["robomimic/can/ddim@2"]
+
+
+def test_shipping_one_step_count_keeps_the_tickets_of_the_others(tmp_path, monkeypatch):
+    import shutil
+
+    from goldenticket.policies import BUNDLED_DIR
+
+    tickets = tmp_path / "robomimic" / "can" / "ddim" / "tickets"
+    tickets.mkdir(parents=True)
+    shutil.copy(BUNDLED_DIR / "robomimic" / "can" / "ddim" / "tickets" / "38b292e22243.safetensors", tickets)
+    monkeypatch.setattr(existence, "BUNDLED_DIR", tmp_path)
+    not_golden = {"best": {"golden": False}}
+    assert existence.ship([not_golden | {"policy": "robomimic/can/ddim@2"}]) == 0
+    assert [p.name for p in tickets.iterdir()] == ["38b292e22243.safetensors"]  # made for ddim@8
+    assert existence.ship([not_golden | {"policy": "robomimic/can/ddim@8"}]) == 0
+    assert not any(tickets.iterdir())
