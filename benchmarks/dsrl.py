@@ -5,8 +5,8 @@
 
 DSRL (diffusion steering by RL) trains SAC whose action is the frozen policy's initial noise,
 chosen per observation; goldenticket searches one constant noise. Both get the same bundled
-policies, tasks, search seeds (SAC's training episodes cycle through them) and the same HELDOUT
-held-out seeds, and the same cores: SAC on `--workers` torch threads, the searches on `--workers`
+policies, tasks, search seeds (SAC's training episodes cycle through them) and the same held-out
+seeds (`Family.heldout`), and the same cores: SAC on `--workers` torch threads, the searches on `--workers`
 workers (default 1: one core each, so two pairs can run side by side as two processes).
 
 - DSRL-SAC (stable-baselines3, the DSRL authors' settings): actor and critic lr 3e-4, batch
@@ -78,7 +78,7 @@ SAC = dict(learning_rate=3e-4, batch_size=256, tau=0.005, gamma=0.99, train_freq
 # DSRL-NA: one distillation step of the noise critic per two TD steps (10 per env step at UTD 20, as
 # the DSRL authors' configuration)
 NA = dict(distill_every=2)
-SEARCH_SEEDS, HELDOUT = 20, 200
+SEARCH_SEEDS = 20
 
 
 @dataclass(frozen=True)
@@ -86,16 +86,17 @@ class Family:
     """What differs per simulator."""
 
     checkpoint: int  # SAC steps between held-out judgements
+    heldout: int  # held-out seeds each judgement runs
     budgets: tuple[int, ...]  # the searches' budgets, in episodes
     halving: bool | None  # the searches' (None: the default rule, halved up to 1100 episodes)
     results: str  # the results files' name
     python: str  # the interpreter in the regenerating command
 
 
-# a robomimic judgement is 200 episodes of up to 400 steps, minutes on one core: it judges less often;
-# its searches follow the defaults' halving, so CMA-ES at 1100 episodes is the default search
-FAMILIES = {"metaworld": Family(400, (100, 300, 1000, 3000), False, "dsrl", "python"),
-            "robomimic": Family(2000, (100, 300, 1100), None, "dsrl_robomimic", "robomimic-venv/bin/python")}
+# a robomimic episode is up to 400 steps, seconds on one core: its judgements are 100 episodes, its
+# searches two budgets, following the defaults' halving, so CMA-ES at 1100 episodes is the default search
+FAMILIES = {"metaworld": Family(400, 200, (100, 300, 1000, 3000), False, "dsrl", "python"),
+            "robomimic": Family(1000, 100, (100, 1100), None, "dsrl_robomimic", "robomimic-venv/bin/python")}
 
 
 def family(pair: str) -> Family:
@@ -165,8 +166,8 @@ class ActorNoise:
         return self.policy.act(obs, steered)
 
 
-def heldout_success(policy, task) -> float:
-    results = rollout(policy, task, [Episode(Gaussian(0), s) for s in seeds_in("heldout", HELDOUT)])
+def heldout_success(policy, task, n: int) -> float:
+    results = rollout(policy, task, [Episode(Gaussian(0), s) for s in seeds_in("heldout", n)])
     return float(np.mean([r.success for r in results]))
 
 
@@ -174,7 +175,7 @@ def settings(workers: int, fam: Family) -> dict:
     """What a pair's folder is computed with (as JSON reads it back)."""
     return json.loads(json.dumps({"sac": SAC, "na": NA, "noise_magnitude": NOISE_MAGNITUDE,
                                   "checkpoint": fam.checkpoint, "search_seeds": SEARCH_SEEDS,
-                                  "heldout": HELDOUT, "workers": workers}))
+                                  "heldout": fam.heldout, "workers": workers}))
 
 
 def check_settings(folder: Path, workers: int, fam: Family) -> None:
@@ -246,7 +247,7 @@ def dsrl_curve(pair: str, variant: str, minutes: float, folder: Path) -> list[di
         trained += time.perf_counter() - start
         curve.append({"seconds": trained, "sac_steps": int(model.num_timesteps), "episodes": env.episodes,
                       "env_steps": env.env_steps,
-                      "success": heldout_success(ActorNoise(policy, model), task)})
+                      "success": heldout_success(ActorNoise(policy, model), task, family(pair).heldout)})
         save_checkpoint(folder, model, curve)
         print(f"{VARIANTS[variant]} {pair}: {curve[-1]}", flush=True)
     return curve
@@ -266,7 +267,7 @@ def search_point(pair: str, method: str, budget: int, workers: int) -> dict:
         seconds = time.perf_counter() - start
         env_steps = sum(row.length for row in store.episodes())
         top = (result.top(1, min_episodes=SEARCH_SEEDS) or result.top(1))[0]
-        judged = evaluator.run([("top", Constant(top.ticket), seeds_in("heldout", HELDOUT))])[0]
+        judged = evaluator.run([("top", Constant(top.ticket), seeds_in("heldout", family(pair).heldout))])[0]
     point = {"budget": budget, "seconds": seconds, "env_steps": env_steps,
              "success": float(np.mean([r.success for r in judged]))}
     print(f"{method} {pair}: {point}", flush=True)
@@ -324,14 +325,15 @@ def trained(minutes: dict[str, float]) -> list[str]:
 def run_pair(pair: str, minutes: dict[str, float], folder: Path, workers: int) -> dict:
     """One pair's base, DSRL and search curves (resumed from and kept in `folder`) and verdicts;
     `minutes`: each DSRL variant's training time (0: not run)."""
-    check_settings(folder, workers, family(pair))
-    base = cached(folder / "base.json", lambda: heldout_success(*loaded(pair)))
+    fam = family(pair)
+    check_settings(folder, workers, fam)
+    base = cached(folder / "base.json", lambda: heldout_success(*loaded(pair), fam.heldout))
     variants = trained(minutes)
     result = {"base": base} | {variant: dsrl_curve(pair, variant, minutes[variant], folder / variant)
                                for variant in variants}
     result |= {method: search_curve(pair, method, workers, folder) for method in SEARCHES}
-    return result | {"plateaued": {variant: plateaued(result[variant], HELDOUT) for variant in variants},
-                     "race": {variant: {method: race(result[variant], result[method], HELDOUT)
+    return result | {"plateaued": {variant: plateaued(result[variant], fam.heldout) for variant in variants},
+                     "race": {variant: {method: race(result[variant], result[method], fam.heldout)
                                         for method in SEARCHES} for variant in variants}}
 
 
@@ -375,8 +377,8 @@ def markdown(results: dict, minutes: dict[str, float]) -> str:
                                  + " | ".join(seconds) + f" | {span(row['speedup'], '{:.2g}x')} |")
     spent = " and ".join(f"{name} {minutes[variant]:g} min" for variant, name in variants.items())
     halved = " (halved up to 1100 episodes, as the defaults)" if fam.halving is None else ""
-    lines += ["", f"Held-out success on {HELDOUT} held-out seeds; trained per pair: {spent}, judged every "
-              f"{fam.checkpoint} SAC steps; each search{halved} timed from scratch at each "
+    lines += ["", f"Held-out success on {fam.heldout} held-out seeds; trained per pair: {spent}, judged "
+              f"every {fam.checkpoint} SAC steps; each search{halved} timed from scratch at each "
               "budget. Plateaued: with 3 checkpoints or more, the best success before the last third of them "
               "is inside the 95% Wilson interval of the overall best (the last third gained nothing beyond "
               "sampling noise). Seconds to a target: the owner's are those of its best checkpoint or budget; "
@@ -397,7 +399,7 @@ def plot(results: dict, path: Path) -> None:
                     label=labels[name])
         ax.axhline(r["base"], color="0.45", linestyle="--", label="base")
         ax.set(xscale="log", title=f"{task} (flow)", xlabel="wall time, s", ylim=(0, 1),
-               ylabel=f"held-out success ({HELDOUT})")
+               ylabel=f"held-out success ({family(task).heldout})")
         ax.legend(fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=90)

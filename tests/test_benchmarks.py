@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import sys
 
@@ -254,7 +255,8 @@ def test_dsrl_race_times_each_side_to_the_others_best_with_wilson_bounds():
         "plateaued": {"dsrl_sac": False}, "race": {"dsrl_sac": races["dsrl_sac"]}}
     table = dsrl.markdown({"robomimic/can": sac_only}, minutes={"dsrl_sac": 60, "dsrl_na": 0})
     command = "robomimic-venv/bin/python benchmarks/dsrl.py --minutes 60 --na-minutes 0 --pairs robomimic/can"
-    assert f"`{command}`" in table and "DSRL-NA" not in table and "judged every 2000 SAC steps" in table
+    assert f"`{command}`" in table and "DSRL-NA" not in table
+    assert "on 100 held-out seeds; trained per pair: DSRL-SAC 60 min, judged every 1000 SAC steps" in table
     assert "| robomimic/can | 50% | 70% (300 s, 30 steps, 3000) | no | 100: " in table
 
 
@@ -277,9 +279,8 @@ def test_dsrl_runs_folder_keeps_settings_and_search_points(tmp_path, monkeypatch
         dsrl.check_settings(tmp_path, 2, metaworld)  # its seconds were measured on one core
     with pytest.raises(UserError, match="other settings"):
         dsrl.check_settings(tmp_path, 1, robomimic)  # judged at other steps
-    monkeypatch.setattr(dsrl, "HELDOUT", dsrl.HELDOUT + 1)
     with pytest.raises(UserError, match="other settings"):
-        dsrl.check_settings(tmp_path, 1, metaworld)
+        dsrl.check_settings(tmp_path, 1, dataclasses.replace(metaworld, heldout=metaworld.heldout + 1))
 
 
 def test_dsrl_pairs_name_their_policy_task_and_family():
@@ -302,8 +303,8 @@ def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, m
                                                                       one_torch_thread):
     from stable_baselines3.common.save_util import load_from_pkl
 
-    small = {"SAC": dsrl.SAC | QUICK_SAC, "HELDOUT": 3, "SEARCH_SEEDS": 3, "FAMILIES": dsrl.FAMILIES | {
-        "metaworld": dsrl.Family(20, (20,), False, "dsrl", "python")}}
+    small = {"SAC": dsrl.SAC | QUICK_SAC, "SEARCH_SEEDS": 3, "FAMILIES": dsrl.FAMILIES | {
+        "metaworld": dsrl.Family(20, 3, (20,), False, "dsrl", "python")}}
     for name, value in small.items():
         monkeypatch.setattr(dsrl, name, value)
     folder = tmp_path / "reach-v3"
