@@ -61,7 +61,7 @@ from goldenticket.files import write_atomic
 from goldenticket.job import search_only
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import load_policy
-from goldenticket.rollout import Episode, rollout
+from goldenticket.rollout import Engine, Episode
 from goldenticket.stats import wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import get_task, seeds_in
@@ -167,7 +167,9 @@ class ActorNoise:
 
 
 def heldout_success(policy, task, n: int) -> float:
-    results = rollout(policy, task, [Episode(Gaussian(0), s) for s in seeds_in("heldout", n)])
+    """Success on `n` held-out seeds, in the engine's shards (one env per episode of a shard)."""
+    with Engine(policy, task, loaded=policy) as engine:
+        results = engine.evaluate([Episode(Gaussian(0), s) for s in seeds_in("heldout", n)])
     return float(np.mean([r.success for r in results]))
 
 
