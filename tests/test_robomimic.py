@@ -1,5 +1,5 @@
 """robomimic's tasks on robosuite 1.5.2 (goldenticket.tasks.robomimic). Marked `robomimic`: they run in
-the venv with the `robomimic` extra (README, "robomimic") and are skipped without it."""
+the venv with the `robomimic` extra (README, "LeRobot, robomimic") and are skipped without it."""
 
 import importlib.metadata
 import importlib.util
@@ -49,6 +49,18 @@ def test_a_reset_is_fast_and_episodes_end_at_robomimics_horizon():
         env.reset(seed)
     assert (time.perf_counter() - start) / 5 < 0.2  # no scene rebuilt
     assert task.max_steps == 400 and get_task("robomimic/transport").max_steps == 700
+
+
+def test_transports_arms_move_in_the_world_frame_as_robosuite_1_4s_did():
+    """Its two bases face each other; an x delta moves both hands along the world's x."""
+    env = get_task("robomimic/transport").make_env()
+    start = env.reset(0)
+    action = np.zeros(14)
+    action[[0, 7]] = 1.0
+    for _ in range(10):
+        obs = env.step(action)[0]
+    moved = obs[[0, 1, 9, 10]] - start[[0, 1, 9, 10]]  # each arm's end effector, x and y
+    assert moved[0] > 0.05 and moved[2] > 0.05 and np.abs(moved[[1, 3]]).max() < 0.02
 
 
 def test_a_lifted_cube_is_a_success():

@@ -8,8 +8,8 @@ quaternion (4) and gripper joints (2), then the object state (`object-state`: Li
 Square 14, Transport 41). Success is the env's own `_check_success()`; episodes end there or at
 robomimic's horizon. Seed s reseeds the env's generator, which draws the objects' placement and the
 arm's initial noise, before a soft reset (the scene is not rebuilt), so seed s is one initial state
-whatever ran before. Needs the `robomimic` extra (robosuite 1.5.2, which pins numpy < 2: README
-gives it a venv of its own).
+whatever ran before. Needs the `robomimic` extra (robosuite 1.5.2, whose dependency mink pins
+numpy < 2: README gives it a venv of its own).
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ import numpy as np
 from goldenticket.errors import UserError
 from goldenticket.tasks.base import check_repeatable, quiet_robosuite_logs
 
-INSTALL = "pip install -e \".[robomimic]\" in a venv of its own (README, \"robomimic\"), for robosuite 1.5.2"
+INSTALL = ("pip install -e \".[robomimic]\" in a venv of its own (README, \"LeRobot, robomimic\"), "
+           "for robosuite 1.5.2")
 ARM_KEYS = ("eef_pos", "eef_quat", "gripper_qpos")
 # robosuite's controller runs numpy's linear algebra, whose OpenBLAS kernels differ per CPU in the
 # last bits; the recorded robomimic numbers come from these cores' kernels (the same episodes)
@@ -42,11 +43,15 @@ class Setup:
     arms: int
     horizon: int  # robomimic's
     obs_dim: int
+    # robosuite 1.4, which robomimic's datasets and DPPO's checkpoints come from, took the arms'
+    # deltas in the world frame; 1.5 takes them in each robot's base frame, which differs from the
+    # world's where a base is rotated: Transport's two face each other
+    world_frame: bool = False
 
 
 SETUPS = {"robomimic/lift": Setup("Lift", 1, 400, 19), "robomimic/can": Setup("PickPlaceCan", 1, 400, 23),
           "robomimic/square": Setup("NutAssemblySquare", 1, 400, 23),
-          "robomimic/transport": Setup("TwoArmTransport", 2, 700, 59)}
+          "robomimic/transport": Setup("TwoArmTransport", 2, 700, 59, world_frame=True)}
 
 
 @dataclass(frozen=True)
@@ -123,7 +128,8 @@ class RobomimicEnv:
             refactor_composite_controller_config,
         )
 
-        arm = load_part_controller_config(default_controller="OSC_POSE")
+        arm = load_part_controller_config(default_controller="OSC_POSE") | (
+            {"input_ref_frame": "world"} if setup.world_frame else {})
         controller = refactor_composite_controller_config(arm, "Panda", ["right"])
         robots = ["Panda"] * setup.arms
         with quiet():
