@@ -1,6 +1,6 @@
 """Train the policy zoo into the package: a flow and a DDIM policy per MT10 task, one multi-task
 flow and DDIM policy for all ten (`metaworld/mt10/<kind>`, told the task by a one-hot), and a flow
-and a DDIM policy for robomimic's Lift and Can (run in robosuite's venv: README, "robomimic").
+and a DDIM policy for robomimic's Lift and Can (run in robosuite's venv: README, "LeRobot, robomimic").
 
     python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]
     python benchmarks/build_zoo.py --multitask [--only flow]   # the two MT10 policies
