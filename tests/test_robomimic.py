@@ -78,6 +78,21 @@ def test_a_lifted_cube_is_a_success():
     assert env.step(np.zeros(7))[1]
 
 
+@pytest.mark.parametrize("name", ["robomimic/lift", "robomimic/can"])
+def test_the_scripted_expert_without_habits_succeeds_on_10_of_10_seeds(name):
+    """The experts `goldenticket train` draws demonstrations from, with no grasp or goal shift and no
+    action noise, on the first 10 training seeds."""
+    from goldenticket.seeds import seeds_in
+    from goldenticket.train import _expert_episode, _experts
+
+    task = get_task(name)
+    env, shifts = task.make_env(), (np.zeros(2), np.zeros(2))
+    rng = np.random.default_rng(0)
+    successes = [_expert_episode(_experts(task, env)(*shifts), env, task, seed, 0.0, rng)[2]
+                 for seed in seeds_in("train", 10)]
+    assert sum(successes) == 10
+
+
 @pytest.fixture
 def unchecked(monkeypatch):
     """CLI runs without the task's repeatability check (it builds envs here and in a second process,
