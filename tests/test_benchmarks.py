@@ -382,16 +382,14 @@ def test_existence_runs_only_the_policies_asked_for(monkeypatch):
 
 
 def test_shipping_one_step_count_keeps_the_tickets_of_the_others(tmp_path, monkeypatch):
-    import shutil
-
-    from goldenticket.policies import BUNDLED_DIR
+    from goldenticket.tickets import Ticket, TicketRecord
 
     tickets = tmp_path / "robomimic" / "can" / "ddim" / "tickets"
-    tickets.mkdir(parents=True)
-    shutil.copy(BUNDLED_DIR / "robomimic" / "can" / "ddim" / "tickets" / "38b292e22243.safetensors", tickets)
+    made_for_8 = Ticket(np.zeros((8, 7), np.float32), TicketRecord(policy="robomimic/can/ddim@8"))
+    made_for_8.save(tickets / f"{made_for_8.id}.safetensors")
     monkeypatch.setattr(existence, "BUNDLED_DIR", tmp_path)
     not_golden = {"best": {"golden": False}}
     assert existence.ship([not_golden | {"policy": "robomimic/can/ddim@2"}]) == 0
-    assert [p.name for p in tickets.iterdir()] == ["38b292e22243.safetensors"]  # made for ddim@8
+    assert [p.name for p in tickets.iterdir()] == [f"{made_for_8.id}.safetensors"]
     assert existence.ship([not_golden | {"policy": "robomimic/can/ddim@8"}]) == 0
     assert not any(tickets.iterdir())
