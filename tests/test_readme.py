@@ -3,8 +3,10 @@ numbers README gives for them) or in CI (`.ci/run`: install, tests, docs, LeRobo
 README's Python blocks run in test_byo.py and test_deploy.py."""
 
 import json
+import os
 import re
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -39,7 +41,10 @@ def _readme_block(starts: str) -> str:
 
 
 def _run(block: str, cwd: Path) -> str:
-    done = subprocess.run(["bash", "-e", "-c", block], cwd=cwd, capture_output=True, text=True, timeout=1800)
+    """Runs `block` with the `goldenticket` of the Python running the tests, activated or not."""
+    path = f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"
+    done = subprocess.run(["bash", "-e", "-c", block], cwd=cwd, capture_output=True, text=True, timeout=1800,
+                          env=os.environ | {"PATH": path})
     assert done.returncode == 0, done.stderr[-2000:]
     return done.stdout
 
