@@ -221,7 +221,9 @@ def failure_reduction(best: dict, base: dict) -> float:
     return (best["success_rate"] - base["success_rate"]) / (1 - base["success_rate"])
 
 
-def markdown(rows: list[dict], summary: dict, wall: float) -> str:
+def markdown(rows: list[dict], summary: dict, wall: float | None) -> str:
+    """The table and its findings; `wall`: the run's wall time, None for a table whose rows come from
+    several runs (each row then gives its own)."""
     lines = ["| task | policy | base | zero ticket | best ticket | p vs base | p vs zero | fresh seeds "
              "| search |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -259,8 +261,8 @@ def markdown(rows: list[dict], summary: dict, wall: float) -> str:
     lines.append(f"- Held-out: {SETTINGS['heldout']} seeds per pair, the same for base, zero and "
                  f"ticket; fresh: the next {FRESH} held-out seeds, and the second fresh range the {FRESH} "
                  "after those, for the best ticket, the base and the zero ticket (shown: ticket vs base, "
-                 "on the first fresh range). Wall time "
-                 f"of this run: {wall / 60:.0f} min (2 workers; resumed runs count only new work).")
+                 "on the first fresh range)." + ("" if wall is None else f" Wall time of this run: "
+                 f"{wall / 60:.0f} min (2 workers; resumed runs count only new work)."))
     return "\n".join(lines) + "\n"
 
 
@@ -412,7 +414,7 @@ def write_robomimic(summaries: list[dict], rows: list[dict], ship_them: bool) ->
     summary, wall = summary_rows(rows), sum(r["wall_time_s"] for r in rows)
     record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
               "paper": PAPER_ROBOMIMIC, "wall_time_s": wall}
-    table = markdown(rows, summary, wall) + "\n".join(paper_lines(rows) + wall_lines(rows)) + "\n"
+    table = markdown(rows, summary, None) + "\n".join(paper_lines(rows) + wall_lines(rows)) + "\n"
     keep_best_tickets(summaries, RESULTS / "robomimic_existence_tickets")
     write_results("robomimic_existence", record, table, lambda path: save_figure(rows, path))
     if ship_them:
