@@ -39,7 +39,7 @@ RECIPES = {
     "peg-insert-side-v3": (20, DemoStyle(grasp_offset=0.02, action_noise=0.1)),
 }
 ROBOMIMIC = {"robomimic/lift": (10, DemoStyle(grasp_offset=0.02, action_noise=0.3)),
-             "robomimic/can": (10, DemoStyle(grasp_offset=0.02, goal_offset=0.02, action_noise=0.3))}
+             "robomimic/can": (20, DemoStyle(grasp_offset=0.02, action_noise=0.2))}
 TRAINED_STEPS = {"flow": 10, "ddim": 8}  # kind -> denoising steps it is trained with
 TRAIN_STEPS = 20_000
 MULTITASK_TRAIN_STEPS = 60_000  # ten tasks' data through one network
