@@ -340,7 +340,8 @@ def keep_best_tickets(summaries: list[dict], folder: Path) -> None:
 
 def ship(summaries: list[dict]) -> int:
     """Replace the bundled tickets of this run's policies with its golden ones (each with its fresh
-    check); other policies' tickets stay, those of the same weights with other steps too."""
+    check), unless a fresh range found one significantly below the base or the zero ticket; other
+    policies' tickets stay, those of the same weights with other steps too."""
     for s in summaries:
         for old in (BUNDLED_DIR / split_steps(s["policy"])[0] / "tickets").glob("*.safetensors"):
             if Ticket.load(old).record.policy == s["policy"]:
@@ -350,12 +351,22 @@ def ship(summaries: list[dict]) -> int:
         best = s["best"]
         if not best["golden"]:
             continue
+        if worse_on_fresh_seeds(best):
+            print(f"Not shipped: {s['policy']}'s golden ticket is significantly below the base or the "
+                  "zero ticket on fresh seeds.")
+            continue
         ticket = Ticket.load(best["ticket_path"])
         ticket = ticket.with_record(extra=ticket.record.extra | {"fresh": best["fresh"]})
         policy_dir, _ = split_steps(s["policy"])
         ticket.save(BUNDLED_DIR / policy_dir / "tickets" / f"{ticket.id}.safetensors")
         shipped += 1
     return shipped
+
+
+def worse_on_fresh_seeds(best: dict) -> bool:
+    """Whether a fresh range found the ticket significantly (p < 0.05) below the base or the zero ticket."""
+    return any(best[key][f"p_below_{arm}"] < 0.05 for key in FRESH_RANGES if key in best
+               for arm in ("base", "zero"))
 
 
 def main() -> None:

@@ -394,3 +394,20 @@ def test_shipping_one_step_count_keeps_the_tickets_of_the_others(tmp_path, monke
     assert [p.name for p in tickets.iterdir()] == [f"{made_for_8.id}.safetensors"]
     assert existence.ship([not_golden | {"policy": "robomimic/can/ddim@8"}]) == 0
     assert not any(tickets.iterdir())
+
+
+def test_a_golden_ticket_below_the_zero_ticket_on_fresh_seeds_is_not_shipped(tmp_path, monkeypatch):
+    from goldenticket.tickets import Ticket, TicketRecord
+
+    ticket = Ticket(np.full((8, 7), 0.5, np.float32), TicketRecord(policy="robomimic/can/flow"))
+    path = tmp_path / "found" / f"{ticket.id}.safetensors"
+    ticket.save(path)
+    monkeypatch.setattr(existence, "BUNDLED_DIR", tmp_path)
+    fresh = {"p_below_base": 0.36, "p_below_zero": 0.9}
+    best = {"golden": True, "ticket_path": str(path), "fresh": fresh, "fresh_2": fresh}
+    summary = {"policy": "robomimic/can/flow", "best": best}
+    assert existence.ship([summary]) == 1
+    assert (tmp_path / "robomimic" / "can" / "flow" / "tickets" / path.name).is_file()
+    best["fresh"] = fresh | {"p_below_zero": 0.017}
+    assert existence.ship([summary]) == 0
+    assert not any((tmp_path / "robomimic" / "can" / "flow" / "tickets").iterdir())
