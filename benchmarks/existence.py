@@ -365,8 +365,7 @@ def ship(summaries: list[dict]) -> int:
 
 def worse_on_fresh_seeds(best: dict) -> bool:
     """Whether a fresh range found the ticket significantly (p < 0.05) below the base or the zero ticket."""
-    return any(best[key][f"p_below_{arm}"] < 0.05 for key in FRESH_RANGES if key in best
-               for arm in ("base", "zero"))
+    return any(best[key][f"p_below_{arm}"] < 0.05 for key in FRESH_RANGES for arm in ("base", "zero"))
 
 
 def main() -> None:
