@@ -16,7 +16,7 @@ held-out seeds that no choice saw. Every pair's best ticket, golden or not, is k
 benchmarks/results/existence_tickets/ with its verdicts. Results: benchmarks/results/existence.{md,json,png};
 with `--robomimic`, the bundled robomimic policies' pairs beside the paper's robomimic rows:
 benchmarks/results/robomimic_existence.{md,json,png}, rewritten as each pair ends, keeping the rows of
-the pairs not run (a Lift pair took 36-63 min on 2 cores, a Can pair 55-79 min).
+the pairs not run (a Lift pair took 36-63 min on 2 cores, a Can pair 55-98 min).
 """
 
 from __future__ import annotations
