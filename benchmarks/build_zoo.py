@@ -1,6 +1,7 @@
 """Train the policy zoo into the package: a flow and a DDIM policy per MT10 task, one multi-task
 flow and DDIM policy for all ten (`metaworld/mt10/<kind>`, told the task by a one-hot), and a flow
-and a DDIM policy for robomimic's Lift and Can (run in robosuite's venv: README, "LeRobot, robomimic").
+and a DDIM policy for robomimic's Lift, Can and Square (run in robosuite's venv: README, "LeRobot,
+robomimic").
 
     python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]
     python benchmarks/build_zoo.py --multitask [--only flow]   # the two MT10 policies
@@ -39,7 +40,8 @@ RECIPES = {
     "peg-insert-side-v3": (20, DemoStyle(grasp_offset=0.02, action_noise=0.1)),
 }
 ROBOMIMIC = {"robomimic/lift": (10, DemoStyle(grasp_offset=0.02, action_noise=0.3)),
-             "robomimic/can": (20, DemoStyle(grasp_offset=0.02, action_noise=0.2))}
+             "robomimic/can": (20, DemoStyle(grasp_offset=0.02, action_noise=0.2)),
+             "robomimic/square": (30, DemoStyle(grasp_offset=0.01, action_noise=0.1))}
 TRAINED_STEPS = {"flow": 10, "ddim": 8}  # kind -> denoising steps it is trained with
 TRAIN_STEPS = 20_000
 MULTITASK_TRAIN_STEPS = 60_000  # ten tasks' data through one network

@@ -345,7 +345,7 @@ def test_robomimic_pairs_and_the_papers_rows_beside_them():
     fresh = {"success_rate": 0.9, "base": {"success_rate": 0.5}}
     lines = existence.paper_lines([{"task": "robomimic/lift", "policy": "ddim@8", "fresh": fresh}])
     assert "| lift | 78.4% | 96.2% | 50.0% | 90.0% (ddim@8) |" in lines
-    assert "| square | 52.2% | 32.9% | - | - (no bundled policy) |" in lines
+    assert "| transport | 10.7% | 18.8% | - | - (no bundled policy) |" in lines
     assert "| can | 42.8% | 80.8% | - | - (not run yet) |" in lines
 
 

@@ -78,7 +78,7 @@ def test_a_lifted_cube_is_a_success():
     assert env.step(np.zeros(7))[1]
 
 
-@pytest.mark.parametrize("name", ["robomimic/lift", "robomimic/can"])
+@pytest.mark.parametrize("name", ["robomimic/lift", "robomimic/can", "robomimic/square"])
 def test_the_scripted_expert_without_habits_succeeds_on_10_of_10_seeds(name):
     """The experts `goldenticket train` draws demonstrations from, with no grasp or goal shift and no
     action noise, on the first 10 training seeds."""

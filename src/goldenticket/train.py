@@ -1,5 +1,5 @@
-"""Demonstrations from scripted experts (Meta-World's, robomimic's Lift and Can), and deterministic
-policy training."""
+"""Demonstrations from scripted experts (Meta-World's, robomimic's Lift, Can and Square), and
+deterministic policy training."""
 
 from __future__ import annotations
 
