@@ -93,6 +93,16 @@ def test_the_scripted_expert_without_habits_succeeds_on_10_of_10_seeds(name):
     assert sum(successes) == 10
 
 
+def test_training_on_a_task_without_a_scripted_expert_is_one_line(tmp_path, capsys):
+    from goldenticket.cli import main
+
+    out = str(tmp_path / "p")
+    assert main(["train", "--task", "robomimic/transport", "--kind", "flow", "--out", out]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(errors) == 1 and "no scripted expert for robomimic/transport" in errors[0]
+    assert not any(tmp_path.iterdir())  # nothing half-written
+
+
 @pytest.fixture
 def unchecked(monkeypatch):
     """CLI runs without the task's repeatability check (it builds envs here and in a second process,
