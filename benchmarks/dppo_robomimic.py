@@ -52,7 +52,7 @@ from tqdm import tqdm
 
 from goldenticket.config import EngineOptions
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Evaluator, judge
+from goldenticket.evaluation import BASE, ZERO, Evaluator, judge
 from goldenticket.files import new_folder_beside, write_atomic
 from goldenticket.noise import Constant
 from goldenticket.policies.dppo import DiffusionMLP, NetworkSpec, alphas_cumprod, save_checkpoint
@@ -188,8 +188,8 @@ def measure(folder: Path, task, heldout: int, workers: int) -> dict:
     zero = Constant(np.zeros((HORIZON_STEPS, task.action_dim), np.float32))
     with (Evaluator.open(str(folder), task, EngineOptions(workers=workers)) as evaluator,
           evaluator.progress(2 * heldout, "held-out: base and zero ticket")):
-        judged = judge(evaluator, {"zero": zero}, seeds_in("heldout", heldout))
-    return {arm: judged[arm].to_dict() for arm in ("base", "zero")}
+        rows = judge(evaluator, {ZERO: zero}, seeds_in("heldout", heldout)).rows
+    return {arm.key: rows[arm].to_dict() for arm in (BASE, ZERO)}
 
 
 def run(args: argparse.Namespace) -> None:

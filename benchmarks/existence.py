@@ -32,6 +32,7 @@ from build_zoo import MT10, ROBOMIMIC
 from results_files import RESULTS, write_results
 
 from goldenticket.config import EvaluateConfig, SearchConfig
+from goldenticket.evaluation import BASE, ZERO, Arm
 from goldenticket.job import find_golden_tickets
 from goldenticket.job.evaluate import evaluate_tickets
 from goldenticket.policies import BUNDLED_DIR
@@ -41,7 +42,7 @@ from goldenticket.results import to_run
 from goldenticket.stats import paired_exact_test, sign_test, wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import seeds_in
-from goldenticket.tickets import Ticket
+from goldenticket.tickets import ZERO_SOURCE, Ticket
 
 HERE = Path(__file__).parent
 POLICIES = ("flow", "ddim@8", "ddim@2")
@@ -110,11 +111,11 @@ def fresh_check(path: Path, policy: str, task: str, out: Path, workers: int, i: 
     with RunStore(out / f"{FRESH_RANGES[i]}.sqlite") as store:
         rows = evaluate_tickets(cfg, store)
     ticket = Ticket.load(path)
-    recorded, mine = ticket.record.heldout, rows[ticket.id]
-    below = {f"p_below_{arm}": paired_exact_test(rows[arm].successes, mine.successes)
-             for arm in ("base", "zero")}
+    recorded, mine = ticket.record.heldout, rows[Arm.ticket(ticket.id)]
+    below = {f"p_below_{arm.key}": paired_exact_test(rows[arm].successes, mine.successes)
+             for arm in (BASE, ZERO)}
     return mine.to_dict() | below | {
-        "base": _rate(rows["base"].to_dict()), "zero": _rate(rows["zero"].to_dict()),
+        "base": _rate(rows[BASE].to_dict()), "zero": _rate(rows[ZERO].to_dict()),
         "seeds": [seeds[0], seeds[-1]], "inside_recorded_interval":
             recorded["ci_low"] <= mine.rate.success_rate <= recorded["ci_high"]}
 
@@ -128,6 +129,7 @@ def table_row(s: dict) -> dict:
     best = s["best"]
     return {"task": s["task"].removeprefix("metaworld/"), "policy": s["policy"].rsplit("/", 1)[1],
             "base": s["base"], "zero": s["zero"], "ticket": best["ticket_id"],
+            "zero_ticket": best.get("source") == ZERO_SOURCE,
             "best": {k: best[k] for k in ("success_rate", "ci_low", "ci_high", "n")},
             "p_vs_base": p_vs_base(best), "p_vs_zero": best["p_vs_zero"],
             "golden": best["golden"]} | {key: best[key] for key in FRESH_RANGES} | {
@@ -230,8 +232,9 @@ def markdown(rows: list[dict], summary: dict, wall: float | None) -> str:
         fresh = f"{r['fresh']['success_rate']:.1%} vs {r['fresh']['base']['success_rate']:.1%}" + \
             ("" if r["fresh"]["inside_recorded_interval"] else " (outside)")
         star = " **golden**" if r["golden"] else ""
+        zero = " (w = 0: the zero ticket)" if r["zero_ticket"] else ""
         lines.append(f"| {r['task']} | {r['policy']} | {rate_text(r['base'])} | {rate_text(r['zero'])} | "
-                     f"{rate_text(r['best'])}{star} | {r['p_vs_base']:.2g} | {r['p_vs_zero']:.2g} | "
+                     f"{rate_text(r['best'])}{zero}{star} | {r['p_vs_base']:.2g} | {r['p_vs_zero']:.2g} | "
                      f"{fresh} | {r['search']} |")
     lines.append("")
     for ref in ("base", "zero"):
@@ -242,6 +245,12 @@ def markdown(rows: list[dict], summary: dict, wall: float | None) -> str:
             f"{s['losses']}, tied in {s['ties']}; sign test p = {s['sign_test_p']:.2g}, win proportion "
             f"95% Wilson [{s['win_rate_ci'][0]:.0%}, {s['win_rate_ci'][1]:.0%}]; mean gain "
             f"{100 * s['mean_gain']:+.1f} points.")
+    zero = [r for r in rows if r["zero_ticket"]]
+    if zero:
+        golden = sum(r["golden"] for r in zero)
+        lines.append(f"- **The zero ticket**: the best ticket is w = 0 in {len(zero)} of {summary['pairs']} "
+                     f"pairs ({golden} of them golden vs base): there the gain is the zero ticket's, not a "
+                     "ticket the search found.")
     f = summary["fresh"]
     if f["golden"]:
         lines.append(f"- **Fresh seeds**: {f['inside_recorded_interval']} of {f['golden']} golden tickets "

@@ -22,8 +22,9 @@ import numpy as np
 from results_files import write_results
 
 from goldenticket.config import SearchConfig
-from goldenticket.job.stages import VALIDATION_BLOCK, halving_sizes
+from goldenticket.job.stages import VALIDATION_BLOCK
 from goldenticket.tasks import get_task
+from goldenticket.ticket_search.racing import halving_sizes
 
 TASKS = ("libero/object/0", "pusht", "aloha/insertion")
 EXECUTED = {"every step": 1, "diffusion (8)": 8, "SmolVLA (50)": 50}  # actions executed per policy call

@@ -27,7 +27,7 @@ from build_zoo import MT10
 from results_files import RESULTS, write_results
 
 from goldenticket.config import EngineOptions, SearchConfig
-from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
+from goldenticket.evaluation import ZERO, Arm, Evaluator, judge, to_dicts
 from goldenticket.job import find_golden_tickets
 from goldenticket.multitask import transfer
 from goldenticket.noise import Constant, Gaussian
@@ -58,11 +58,9 @@ def fresh_verdict(policy_name: str, tickets: dict[str, dict[str, Ticket | None]]
                            loaded=policy) as evaluator, \
             evaluator.progress(len(FRESH) * len(ARMS) * len(TASKS), "fresh held-out verdict"):
         for task in TASKS:
-            roles = {role: Gaussian(0) if t is None else Constant(t.noise)
+            roles = {Arm.ticket(role): Gaussian(0) if t is None else Constant(t.noise)
                      for role, t in tickets[task].items()}
-            judged = judge(evaluator, {"zero": zero} | roles, FRESH, Gaussian(0), task)
-            adjust_for_multiplicity(judged, list(roles))
-            out[task] = {label: j.to_dict() for label, j in judged.items()}
+            out[task] = to_dicts(judge(evaluator, {ZERO: zero} | roles, FRESH, Gaussian(0), task).rows)
     return out
 
 

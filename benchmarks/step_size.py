@@ -25,7 +25,7 @@ import numpy as np
 from results_files import RESULTS, write_results
 
 from goldenticket.config import EngineOptions, SearchConfig
-from goldenticket.evaluation import Evaluator, judge
+from goldenticket.evaluation import BASE, ZERO, Arm, Evaluator, judge
 from goldenticket.job import Plan, search_only, stages
 from goldenticket.job.stages import search_evaluate
 from goldenticket.noise import Constant, Gaussian
@@ -98,15 +98,16 @@ def study(pair: str, runs: Path, workers: int) -> dict:
     with RunStore(runs / f"{pair.replace('/', '_')}.sqlite") as store, \
             Evaluator.open(name, task, EngineOptions(workers=workers), store, loaded=policy) as evaluator:
         picks = {start: delivered(evaluator, name, policy, start) for start in STARTS}
-        sources = {"zero": Constant(zero_ticket(policy.noise_shape).noise)}
-        sources |= {t.id: Constant(t.noise) for t, _ in picks.values()}
-        judged = judge(evaluator, sources, heldout, Gaussian(DEFAULTS.seed))
-    out |= {arm: judged[arm].row().to_dict() for arm in ("base", "zero")}
+        sources = {ZERO: Constant(zero_ticket(policy.noise_shape).noise)}
+        sources |= {Arm.ticket(t.id): Constant(t.noise) for t, _ in picks.values()}
+        rows = judge(evaluator, sources, heldout, Gaussian(DEFAULTS.seed)).rows
+    out |= {arm.key: rows[arm].to_dict() for arm in (BASE, ZERO)}
     out["starts"] = {}
     for start, (t, is_zero) in picks.items():
-        below = {f"p_below_{arm}": paired_exact_test(judged[arm].successes, judged[t.id].successes)
-                 for arm in ("base", "zero")}
-        out["starts"][start] = judged[t.id].row().to_dict() | {"ticket": t.id, "is_zero": is_zero} | below
+        mine = rows[Arm.ticket(t.id)]
+        below = {f"p_below_{arm.key}": paired_exact_test(rows[arm].successes, mine.successes)
+                 for arm in (BASE, ZERO)}
+        out["starts"][start] = mine.to_dict() | {"ticket": t.id, "is_zero": is_zero} | below
     return out
 
 

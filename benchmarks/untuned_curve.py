@@ -21,7 +21,6 @@ from pathlib import Path
 from results_files import write_results
 
 import goldenticket
-from goldenticket.evaluation import to_dicts
 from goldenticket.report import p_vs_base, rate_text
 
 HERE = Path(__file__).parent
@@ -67,7 +66,8 @@ def run(policy, task, out: Path, options: dict, workers: int) -> dict:
     recorded = summary.to_dict()
     keys = ("base", "zero", "best", "deliver", "search_episodes", "heldout_seeds")
     return {"search": {k: recorded[k] for k in keys},
-            "fresh": to_dicts(fresh), "fresh_seeds": [FRESH.start, FRESH.stop - 1],
+            "fresh": {arm: row.to_dict() for arm, row in fresh.items()},
+            "fresh_seeds": [FRESH.start, FRESH.stop - 1],
             "options": options | {"runs": str(out), "workers": workers},
             "wall_seconds": {"search": round(searched - start), "fresh": round(done - searched)}}
 

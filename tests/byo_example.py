@@ -1,6 +1,7 @@
 """A policy and environments written outside goldenticket, named by import strings in tests."""
 
 import multiprocessing as mp
+import os
 
 import gymnasium as gym
 import numpy as np
@@ -62,6 +63,14 @@ class UnseededInPools(PointReach):
     def reset(self, seed=None, options=None):
         in_pool = mp.current_process().name.startswith("SpawnPoolWorker")
         return super().reset(seed=None if in_pool else seed, options=options)
+
+
+class SeededPerProcess(PointReach):
+    """Seeds reset from its seed and the process id: the same states for a seed in one process, other
+    ones in a fresh process."""
+
+    def reset(self, seed=None, options=None):
+        return super().reset(seed=seed + os.getpid(), options=options)
 
 
 class BrokenStep(PointReach):
@@ -129,6 +138,24 @@ class RaisingAct(BiasedController):
         return obs["velocity"]
 
 
+class IgnoresNoise(BiasedController):
+    """Acts as BiasedController does on zero noise, whatever noise it is given."""
+
+    name = "ignores-noise"
+
+    def act(self, obs, noise):
+        return super().act(obs, np.zeros_like(noise))
+
+
+class WideActions(BiasedController):
+    """Acts with 3 numbers; PointReach takes 2."""
+
+    noise_shape = (4, 3)
+
+    def act(self, obs, noise):
+        return np.clip(noise[:, : self.n_exec], -1, 1)
+
+
 class BadFingerprint(BiasedController):
     def __init__(self, fingerprint):
         self._fingerprint = fingerprint
@@ -168,6 +195,10 @@ def broken_predicate(obs, info):
 
 def make_unseeded_in_pools_env():
     return UnseededInPools()
+
+
+def make_per_process_env():
+    return SeededPerProcess()
 
 
 def make_broken_step_env():
@@ -210,6 +241,14 @@ def make_object_policy():
 
 def make_str_policy():
     return DtypeActions(str)
+
+
+def make_noise_ignoring_policy():
+    return IgnoresNoise()
+
+
+def make_wide_policy():
+    return WideActions()
 
 
 def make_raising_policy():

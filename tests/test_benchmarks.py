@@ -17,12 +17,13 @@ def _rate(p, n=200):
     return {"success_rate": p, "ci_low": p - 0.05, "ci_high": p + 0.05, "n": n}
 
 
-def _row(base, zero, best, p_base, p_zero, below_zero=0.5, spent=1200):
+def _row(base, zero, best, p_base, p_zero, below_zero=0.5, spent=1200, zero_ticket=False):
     fresh = _rate(best) | {"p_vs_base": p_base, "p_vs_zero": p_zero, "base": _rate(base), "zero": _rate(zero),
                            "inside_recorded_interval": True, "p_below_base": 0.5, "p_below_zero": below_zero}
     return {"task": "t", "policy": "flow", "base": _rate(base), "zero": _rate(zero), "best": _rate(best),
-            "p_vs_base": p_base, "p_vs_zero": p_zero, "golden": p_base < 0.05, "fresh": fresh,
-            "fresh_2": fresh, "search": "cma-es, 850 episodes", "search_and_validation": spent}
+            "zero_ticket": zero_ticket, "p_vs_base": p_base, "p_vs_zero": p_zero, "golden": p_base < 0.05,
+            "fresh": fresh, "fresh_2": fresh, "search": "cma-es, 850 episodes",
+            "search_and_validation": spent}
 
 
 def test_existence_summary_counts_gains_sign_test_and_targets():
@@ -42,6 +43,11 @@ def test_existence_summary_counts_gains_sign_test_and_targets():
     assert s["targets"] == {"pairs": 4, "judged": expected, "fresh": on_fresh, "fresh_2": on_fresh}
     assert s["episodes"] == {"mean": 1212.5, "max": 1250}
     assert "significantly below the zero ticket in 1 (target 0)" in table and "at most 1250" in table
+    assert "w = 0" not in table and "**The zero ticket**" not in table
+    zero = _row(0.3, 0.45, 0.45, 0.01, 1.0, zero_ticket=True)
+    table = existence.markdown([*rows, zero], existence.summary_rows([*rows, zero]), 60.0)
+    assert "| 45.0% [40%, 50%] (w = 0: the zero ticket) **golden** |" in table
+    assert "the best ticket is w = 0 in 1 of 5 pairs (1 of them golden vs base)" in table
     strong = existence.summary_rows([*rows, _row(0.9, 0.9, 1.0, 0.001, 0.001)])["targets"]
     assert strong["pairs"] == 4 and strong["judged"] == expected  # a base above 85% is not a target pair
 

@@ -30,7 +30,9 @@ def test_where_any_noise_hurts_the_zero_ticket_is_delivered(tmp_path, capsys):
     best = summary["best"]
     assert best["source"] == "zero ticket" and best["success_rate"] == summary["zero"]["success_rate"]
     assert best["success_rate"] > summary["base"]["success_rate"]
-    assert "(the zero ticket, w = 0)" in said and f"ticket {best['ticket_id']} (w = 0) " in said
+    assert "(the zero ticket, w = 0)" in said
+    assert f"zero ticket = ticket {best['ticket_id']}, judged as " in said
+    assert said.count("zero ticket  ") == 1 and f"ticket {best['ticket_id']}  " not in said  # its row, once
     delivered = Ticket.load(best["ticket_path"])
     assert not delivered.noise.any() and delivered.metadata["source"] == "zero ticket"
     with RunStore(out / "run.sqlite") as store:  # the zero arm's held-out episodes serve it: none rerun
@@ -67,19 +69,19 @@ def test_given_tickets_need_validation_seeds(tmp_path, capsys):
 
 
 def test_the_zero_ticket_ranks_before_a_ticket_it_ties(tmp_path):
-    from goldenticket.evaluation import Judged
+    from goldenticket.evaluation import Arm, VerdictRow
     from goldenticket.job.folder import save_ranked
-    from goldenticket.rollout import EpisodeResult
+    from goldenticket.stats import Rate
     from goldenticket.tickets import ZERO_SOURCE, TicketRecord
 
-    def judged(successes: str, p: float) -> Judged:
-        return Judged("arm", [EpisodeResult(s, c == "1", float(c == "1"), 10, 0.0)
-                              for s, c in enumerate(successes)], p_vs_base=p)
+    def judged(successes: str, p: float) -> VerdictRow:
+        return VerdictRow(Rate.of([c == "1" for c in successes]), p_vs_base=p)
 
     zero = Ticket(zero_ticket((4, 2)).noise, TicketRecord(source=ZERO_SOURCE))
     tie, worse = (Ticket(np.full((4, 2), w, np.float32), TicketRecord(search_score=1.0)) for w in (0.5, -0.5))
-    rows = {zero.id: judged("1100", 0.3), tie.id: judged("1010", 0.1), worse.id: judged("1000", 0.6)}
+    rows = {Arm.ticket(zero.id): judged("1100", 0.3), Arm.ticket(tie.id): judged("1010", 0.1),
+            Arm.ticket(worse.id): judged("1000", 0.6)}
     ranked = save_ranked([tie, worse, zero], rows, tmp_path, (0, 3), {})
     assert [t.id for t in ranked] == [zero.id, tie.id, worse.id]  # a lower p does not break the tie
-    rows[tie.id] = judged("1110", 0.1)
+    rows[Arm.ticket(tie.id)] = judged("1110", 0.1)
     assert save_ranked([tie, worse, zero], rows, tmp_path, (0, 3), {})[0].id == tie.id

@@ -67,8 +67,7 @@ def test_search_picture_names_the_heldout_seeds_as_the_cli_takes_them(search_run
     figures = []
     monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or path)
     assert _search(policy_dir, search_run, workers=1) == 0  # resumed: only the pictures are drawn again
-    legend = [t.get_text() for t in figures[-1].axes[0].get_legend().get_texts()]
-    assert "base policy on held-out seeds 1000000:1000004" in legend
+    assert figures[-1].axes[1].get_title(loc="left") == "judged on held-out seeds 1000000:1000004"
 
 
 def test_evaluate_json_and_tickets_show(search_run, policy_dir, capsys, tmp_path):
@@ -204,9 +203,9 @@ def test_policies_lists_bundled_policies_with_measured_numbers(capsys):
 
 
 def test_bundled_tickets_are_listed_and_found_by_id(search_run, capsys, monkeypatch, tmp_path):
-    from goldenticket.policies import registry
+    from goldenticket import zoo
 
-    monkeypatch.setattr(registry, "BUNDLED_DIR", tmp_path)
+    monkeypatch.setattr(zoo, "BUNDLED_DIR", tmp_path)
     assert main(["tickets", "list"]) == 0 and "No bundled tickets" in capsys.readouterr().out
     ticket = Ticket.load(json.loads((search_run / "summary.json").read_text())["best"]["ticket_path"])
     ticket.save(tmp_path / "a" / "flow" / "tickets" / f"{ticket.id}.safetensors")

@@ -2,6 +2,8 @@
 policy implies, and the session and transfer flags made from their config fields."""
 
 import argparse
+import subprocess
+import sys
 from dataclasses import MISSING, fields
 
 import pytest
@@ -159,3 +161,35 @@ def test_only_lerobot_checkpoints_take_a_device(monkeypatch):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     with pytest.raises(UserError, match="only LeRobot checkpoints run on a chosen device"):
         load_policy(POLICY, "cuda")
+
+
+def test_a_seed_range_given_to_seed_points_at_seeds(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["evaluate", "--policy", POLICY, "--seed", "1005000:1005300"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.count("\n") == 1 and "a range of seeds A:B is --seeds" in err
+
+
+@pytest.mark.parametrize("argv", [
+    ["search", "--policy", POLICY, "--out", "{tmp}/run", "--budget", "-3"],
+    ["search", "--policy", "nope/flow", "--out", "{tmp}/run"],
+    ["search", "--policy", "nope/flow", "--task", "metaworld/reach-v3", "--out", "{tmp}/run"],
+    ["evaluate", "--policy", POLICY, "--seeds", "1:5"],
+    ["evaluate", "--policy", "nope/flow", "--seeds", "1000000:1000005"],
+    ["evaluate", "--policy", POLICY, "--ticket", "{tmp}/none.safetensors"],
+    ["evaluate", "--policy", POLICY, "--plot", "{tmp}/no/folder.png"],
+    ["train", "--task", "metaworld/reach-v3", "--out", "{tmp}/policy", "--steps", "0"],
+    ["search", "--policy", POLICY, "--task", "metaworld/nope-v3", "--out", "{tmp}/run"],
+    ["evaluate", "--policy", POLICY, "--task", "nope", "--seeds", "1000000:1000005"],
+])
+def test_a_bad_option_policy_task_or_ticket_answers_before_anything_heavy_loads(tmp_path, argv):
+    """One line, exit 2, and no model library imported (a task's name may ask Meta-World for its
+    names): the answer comes in a fraction of a second."""
+    named_task = "--task" in argv and argv[0] != "train"
+    heavy = " ".join(("torch",) if named_task else ("torch", "numpy", "metaworld"))
+    code = ("import sys\nfrom goldenticket.cli import main\nrc = main(sys.argv[2:])\n"
+            "print(rc, sorted(set(sys.argv[1].split()) & set(sys.modules)))")
+    done = subprocess.run([sys.executable, "-c", code, heavy, *(a.format(tmp=tmp_path) for a in argv)],
+                          capture_output=True, text=True, timeout=60)
+    assert done.stdout == "2 []\n" and done.stderr.count("\n") == 1, (done.stdout, done.stderr)
+    assert not any(tmp_path.iterdir())

@@ -13,7 +13,9 @@ import pytest
 import goldenticket
 from goldenticket.cli import main
 from goldenticket.errors import UserError
+from goldenticket.noise import Constant
 from goldenticket.policies import TicketedPolicy, deploy, identity, load_policy
+from goldenticket.rollout import Episode, rollout
 from goldenticket.tasks import get_task
 from goldenticket.tasks.base import stack
 
@@ -72,7 +74,9 @@ def test_readme_deploy_snippet_runs_and_refuses_another_policys_ticket(capsys):
     demo_ticket = re.search(r'"(demo-out/tickets/\w{12}\.safetensors)"', snippet).group(1)
     namespace = {}
     exec(snippet.replace(demo_ticket, "ac7033f127b8"), namespace)
-    assert namespace["actions"].shape == (4, 4) and capsys.readouterr().out == "(4, 4)\n"
+    policy, task = namespace["policy"], namespace["task"]
+    ran = rollout(policy.policy, task, [Episode(Constant(policy.noise), 1_000_000)])[0]  # as evaluate runs it
+    assert capsys.readouterr().out == f"(8, 4) 4 {ran.success} {ran.length}\n"
     with pytest.raises(UserError, match="was found for policy"):
         deploy("metaworld/reach-v3/flow", "ac7033f127b8")
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Bar, Evaluator, judge
+from goldenticket.evaluation import BASE, ZERO, Bar, Evaluator, judge
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.rollout import NONFINITE, Engine
 from goldenticket.store import RunStore
@@ -36,9 +36,9 @@ def test_resume_reads_finished_episodes_back_instead_of_rerunning(tmp_path):
 def test_judge_pairs_every_source_with_the_base_on_the_same_seeds():
     seeds = seeds_in("heldout", 6)
     with Engine(POLICY, get_task(TASK)) as engine:
-        judged = judge(Evaluator(engine), {"zero": Constant(np.zeros((8, 4), np.float32))}, seeds)
-    assert judged["base"].p_vs_base is None and judged["base"].rate.n == 6
-    assert 0 <= judged["zero"].p_vs_base <= 1 and judged["zero"].rate.n == 6
+        rows = judge(Evaluator(engine), {ZERO: Constant(np.zeros((8, 4), np.float32))}, seeds).rows
+    assert rows[BASE].p_vs_base is None and rows[BASE].rate.n == 6
+    assert 0 <= rows[ZERO].p_vs_base <= 1 and rows[ZERO].rate.n == 6
 
 
 def test_an_episode_that_begins_elsewhere_than_the_first_on_its_seed_stops_the_run_unrecorded(tmp_path):
@@ -74,9 +74,10 @@ def test_a_policy_non_finite_on_too_many_heldout_episodes_stops_the_run_and_its_
         assert len(results) == 40 and all(r.cause == NONFINITE and not r.success for r in results)
 
 
-def test_a_bar_that_a_signal_cut_off_in_its_constructor_closes_quietly():
+def test_a_bar_that_a_signal_cut_off_in_its_constructor_closes_quietly(capfd):
     """Ctrl-C inside tqdm's __init__ leaves a bar with no position; collecting it must not print a
     traceback after the one-line stop message."""
     bar = Bar.__new__(Bar)
     bar.disable, bar.leave = False, True  # what __init__ had set before the signal
     bar.__del__()
+    assert capfd.readouterr() == ("", "")

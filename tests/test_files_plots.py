@@ -5,10 +5,11 @@ import json
 import os
 import socket
 import stat
+import subprocess
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
-import numpy as np
 import pytest
 
 from goldenticket import plots
@@ -57,6 +58,29 @@ def test_write_atomic_replaces_a_regular_file(tmp_path):
     write_atomic(target, "new")
     assert target.read_text() == "new" and stat.S_ISREG(target.lstat().st_mode)
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+KILLED_WRITER = """
+import os, sys, time
+from goldenticket.files import write_atomic
+os.fsync = lambda fd: (print("writing", flush=True), time.sleep(60))
+write_atomic(sys.argv[1], b"half")
+"""
+
+
+def test_a_file_half_written_by_a_killed_process_is_removed_on_the_next_write(tmp_path):
+    target = tmp_path / "tickets" / "abc.safetensors"
+    writer = subprocess.Popen([sys.executable, "-c", KILLED_WRITER, str(target)], stdout=subprocess.PIPE,
+                              text=True)
+    assert writer.stdout.readline() == "writing\n"
+    writer.kill()
+    writer.wait()
+    assert len(list(target.parent.glob(".*.partial"))) == 1
+    running = target.with_name(f".{target.name}.{os.getpid()}-0000.partial")  # a live writer's
+    running.write_bytes(b"")
+    write_atomic(target, b"whole")
+    assert target.read_bytes() == b"whole"
+    assert list(target.parent.glob(".*.partial")) == [running]
 
 
 def test_evaluate_refuses_a_fifo_as_plot_in_one_line(tmp_path, capsys, monkeypatch):
@@ -118,27 +142,34 @@ def test_verdict_without_zero_ticket_or_best_draws_what_it_has(tmp_path):
     assert plots.arms_png(rows, tmp_path / "v.png", "session").read_bytes().startswith(b"\x89PNG")
 
 
-def test_search_picture_marks_validated_judged_and_chosen_tickets_and_the_base(tmp_path, drawn):
+def test_search_picture_marks_validated_judged_and_chosen_tickets_beside_the_heldout_rows(tmp_path, drawn):
     scores = [0.2, 0.9, 0.5, 0.7, 0.6, 0.8]
+    rows = {"base": _rate(0.4), "zero ticket": _rate(0.5),
+            "ticket ab12": _rate(0.7, p_vs_base=0.02, golden=True)}
     plots.search_png(scores, [5] * 6, tmp_path / "s.png", "title", validated=[1, 3, 5], judged=[3, 1],
-                     chosen=3, base=(0.4, "held-out seeds 1000000:1000010"))
-    ax = drawn[0].axes[0]
+                     chosen=3, heldout=(rows, "ticket ab12", "held-out seeds 1000000:1000010"))
+    ax, side = drawn[0].axes
     assert ax.get_ylabel().startswith("search score")
-    delivered = "delivered (chosen on validation seeds,\nthen best held-out success)"
-    assert _legend(ax) == ["ticket, 5 episodes", "best so far (5 episodes)",
-                           "base policy on held-out seeds 1000000:1000010", "sent to validation",
+    delivered = "delivered: the best on held-out seeds"
+    assert _legend(ax) == ["ran 5 episodes, every search seed", "sent to validation",
                            "judged on held-out seeds", delivered]
     assert _points(ax, "sent to validation") == [(2, 0.9), (4, 0.7), (6, 0.8)]
     assert _points(ax, "judged on held-out seeds") == [(4, 0.7), (2, 0.9)]
     assert _points(ax, delivered) == [(4, 0.7)]
+    assert side.get_title(loc="left") == "judged on held-out seeds 1000000:1000010"  # the base among the rows there
+    assert [t.get_text() for t in side.get_yticklabels()] == list(rows)
+    assert [t.get_text() for t in side.get_yticklabels() if t.get_fontweight() == "bold"] == ["ticket ab12"]
 
 
-def test_search_picture_tells_tickets_with_fewer_episodes_apart(tmp_path, drawn):
-    plots.search_png([0.9, 0.3, 0.5], [2, 4, 4], tmp_path / "s.png", "title")
+def test_search_picture_shows_how_many_seeds_halving_let_each_ticket_run(tmp_path, drawn):
+    plots.search_png([0.9, 0.3, 0.5, 0.6], [2, 4, 2, 8], tmp_path / "s.png", "title")
     ax = drawn[0].axes[0]
-    assert _legend(ax) == ["ticket, 4 episodes", "ticket, fewer episodes", "best so far (4 episodes)"]
-    assert _points(ax, "ticket, fewer episodes") == [(1, 0.9)]
-    assert np.array_equal(ax.lines[0].get_ydata(), [np.nan, 0.3, 0.5], equal_nan=True)
+    assert len(drawn[0].axes) == 1 and not ax.lines  # no held-out panel yet, no line across tickets
+    assert _legend(ax) == ["ran 2 episodes, then cut by halving", "ran 4 episodes, then cut by halving",
+                           "ran 8 episodes, every search seed"]
+    assert _points(ax, "ran 2 episodes, then cut by halving") == [(1, 0.9), (3, 0.5)]
+    shades = [collection.get_facecolor()[0][1] for collection in ax.collections]
+    assert shades == sorted(shades, reverse=True)  # darker green, more seeds run
 
 
 @pytest.mark.slow
@@ -148,17 +179,14 @@ def test_search_marks_the_tickets_the_run_validated_and_judged(tmp_path, drawn, 
                        search_seeds=3, validation_seeds=3, heldout=5, top_k=2, workers=1, max_steps=10)
     summary = find_golden_tickets(cfg, tmp_path)
     verdict, search = (figure.axes[0] for figure in drawn)
+    assert search.figure.axes[1].get_yticklabels()[0].get_text() == "base"
     best = summary.best
-    assert [t.get_text() for t in verdict.get_yticklabels() if t.get_fontweight() == "bold"] == [
-        f"ticket {best.label}"]
+    assert [t.get_text() for t in verdict.get_yticklabels() if t.get_fontweight() == "bold"] == [best.label]
     assert len(_points(search, "sent to validation")) == 3 * cfg.top_k
     assert [y for _, y in _points(search, "judged on held-out seeds")] == [
         t.search_score for t in summary.tickets if t.source != "zero ticket"]  # the zero ticket: no search
     chosen = [] if best.source == "zero ticket" else [best.search_score]  # the zero ticket: not searched
-    delivered = "delivered (chosen on validation seeds,\nthen best held-out success)"
-    assert [y for _, y in _points(search, delivered)] == chosen
-    base_line = next(line for line in search.lines if line.get_label().startswith("base policy"))
-    assert base_line.get_ydata()[0] == summary.base.rate.success_rate  # objective "success"
+    assert [y for _, y in _points(search, "delivered: the best on held-out seeds")] == chosen
 
 
 def test_existence_figure_titles_fit_in_the_picture(monkeypatch):
@@ -173,33 +201,21 @@ def test_existence_figure_titles_fit_in_the_picture(monkeypatch):
         assert box.x0 >= 0 and box.x1 <= fig.bbox.x1, ax.get_title()
 
 
-def test_search_picture_sets_the_base_apart_from_the_search_scores(tmp_path, drawn):
-    plots.search_png([0.2, 0.9, 0.5], [5] * 3, tmp_path / "s.png", "title",
-                     base=(0.4, "held-out seeds 1000000:1000010"))
+def test_verdict_draws_the_zero_ticket_once_where_it_was_judged_as_a_ticket(tmp_path, drawn):
+    from goldenticket.evaluation import VerdictRow
+    from goldenticket.results import FoundTicket, SearchRun, Summary
+    from goldenticket.tickets import ZERO_SOURCE
+
+    def row(k, p=None):
+        return VerdictRow(Rate.counted(k, 20), p_vs_base=p)
+
+    tickets = (FoundTicket("81be", "z", None, row(12, 0.4), source=ZERO_SOURCE),
+               FoundTicket("aaa", "a", 0.5, row(11, 0.6)))
+    summary = Summary("task", SearchRun("p", "rs", 0, 8, "budget", (0, 19)), row(10), row(12, 0.2), tickets)
+    plots.arms_png(summary.table().rows(), tmp_path / "v.png", "title", best=summary.best.label)
     ax = drawn[0].axes[0]
-    base = next(line for line in ax.lines if line.get_label().startswith("base"))
-    assert base.get_label() == "base policy on held-out seeds 1000000:1000010"
-    assert list(base.get_xdata()) == [1.0] and base.get_linestyle() == "None"  # at the right margin
-    assert base.get_transform().contains_branch_seperately(ax.transData) == (False, True)  # x: axes
-
-
-@pytest.mark.parametrize(("validated", "said"), [([1, 2], "chosen on validation seeds"), ([], "held-out")])
-def test_search_picture_says_how_the_delivered_ticket_was_chosen(tmp_path, drawn, validated, said):
-    plots.search_png([0.2, 0.9, 0.5], [5] * 3, tmp_path / "s.png", "title", validated=validated, judged=[2],
-                     chosen=2)
-    star = next(label for label in _legend(drawn[0].axes[0]) if label.startswith("delivered"))
-    assert said in star and ("validation" in star) == bool(validated)
-
-
-def test_verdict_draws_the_zero_ticket_once(tmp_path, drawn):
-    rows = {"base": _rate(0.5), "zero ticket": _rate(0.55, p_vs_base=0.2, golden=False),
-            "ticket aaa": _rate(0.6, p_vs_base=0.3, golden=False),
-            "ticket 81be (w = 0)": _rate(0.55, p_vs_base=0.4, golden=False)}
-    plots.arms_png(rows, tmp_path / "v.png", "title", best="ticket 81be (w = 0)")
-    ax = drawn[0].axes[0]
-    assert [t.get_text() for t in ax.get_yticklabels()] == ["base", "ticket aaa", "ticket 81be (w = 0)"]
-    assert len(ax.containers) == 3 and _points(ax, "chosen ticket") == [(0.55, 2)]
-    assert "zero ticket" in _legend(ax)  # drawn in the zero ticket's colour
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["base", "zero ticket", "ticket aaa"]
+    assert len(ax.containers) == 3 and _points(ax, "chosen ticket") == [(0.6, 1)]
 
 
 def test_verdict_success_axis_stays_within_0_and_100_percent(tmp_path, drawn):

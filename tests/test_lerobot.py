@@ -193,6 +193,64 @@ def test_observations_without_the_input_features_are_refused(tmp_path):
         rollout(policy, get_task(REACH), [Episode(Gaussian(), 1_000_000)])
 
 
+MARKER_STEP = """\
+import pathlib
+pathlib.Path(__file__).with_name("imported").touch()
+
+class Step:
+    def __init__(self, **config):
+        pass
+"""
+
+
+class PluginStep:
+    """A processor step registered outside LeRobot."""
+
+    def __init__(self, **config):
+        pass
+
+
+@pytest.mark.parametrize(("step", "says"), [
+    ({"class": "gt_marker_step.Step", "config": {}},
+     "step 0 names the import path 'gt_marker_step.Step'; goldenticket loads only the processor steps "
+     "LeRobot registers, named by \"registry_name\""),
+    ({"registry_name": "gt_plugin_step", "config": {}},
+     "step 0 'gt_plugin_step' is no processor step LeRobot registers"),
+], ids=["import path", "not lerobot's"])
+@needs_lerobot
+def test_a_processor_step_lerobot_does_not_register_is_refused_before_any_runs(tmp_path, monkeypatch, step,
+                                                                                 says):
+    """A saved processor naming a class to import, or a step registered outside LeRobot, is one line
+    naming the file and the step; nothing it names is imported."""
+    from lerobot.processor import ProcessorStepRegistry
+
+    (tmp_path / "gt_marker_step.py").write_text(MARKER_STEP)  # importing it leaves a file beside it
+    monkeypatch.syspath_prepend(str(tmp_path))
+    folder = lerobot_checkpoint(tmp_path / "policy")
+    preprocessor = folder / "policy_preprocessor.json"
+    pipeline = json.loads(preprocessor.read_text())
+    pipeline["steps"].insert(0, step)
+    preprocessor.write_text(json.dumps(pipeline))
+    ProcessorStepRegistry.register("gt_plugin_step")(PluginStep)
+    try:
+        with pytest.raises(UserError) as error:
+            load_policy(str(folder))
+    finally:
+        ProcessorStepRegistry.unregister("gt_plugin_step")
+    assert str(error.value) == f"{preprocessor}: {says}"
+    assert not (tmp_path / "imported").exists()
+
+
+@needs_lerobot
+def test_the_steps_lerobot_registers_are_those_its_checkpoints_name():
+    from goldenticket.policies.lerobot.checkpoint import check_processors, lerobot_steps
+
+    steps = lerobot_steps()
+    for folder in (SHIPPED, ROOT / "examples" / "smolvla_metaworld_policy"):
+        check_processors(folder, steps, needed=("device_processor",))
+    assert {"pi0_new_line_processor", "pi05_prepare_state_tokenizer_processor_step"} <= steps
+
+
 def test_the_example_env_is_what_lerobot_eval_runs():
     """make_vector_env gives lerobot-eval's autoreset and the 150-step limit rollout reads."""
     env = make_vector_env(2)

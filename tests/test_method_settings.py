@@ -4,6 +4,8 @@ written back to config.toml."""
 import dataclasses
 import inspect
 import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +19,16 @@ from goldenticket.ticket_search import OPTIMIZERS, make_optimizer
 HERE = Path(__file__).parent
 SMALL = ["--policy", "byo_example:make_policy", "--task", "byo_example:make_env", "--search-seeds", "2",
          "--heldout", "4", "--top-k", "1", "--validation-seeds", "0", "--max-steps", "10", "--workers", "1"]
+
+
+def test_the_methods_settings_import_from_ticket_search_without_config_or_numpy():
+    """Search sits below config: config (and the command line) reads each method's settings from it,
+    before anything heavy loads."""
+    code = ("import sys\nfrom goldenticket.ticket_search import METHODS, CEMSettings\n"
+            "assert METHODS['cem'] is CEMSettings\n"
+            "print(sorted({'goldenticket.config', 'numpy'} & set(sys.modules)))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.stdout == "[]\n", done.stderr
 
 
 def test_every_method_has_its_settings_and_no_optimizer_repeats_a_default():

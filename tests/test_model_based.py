@@ -28,6 +28,7 @@ class HiddenOptimum:
             outcomes.append(EpisodeOutcome(successes.astype(float), successes))
         return outcomes
 
+SLOW_GP = [pytest.param(m, marks=pytest.mark.slow) if m == "gp" else m for m in METHODS]  # GP: seconds
 
 def asked(method: str, rng_seed: int, budget: int = 200, **changed) -> list[Query]:
     seen = []
@@ -42,7 +43,7 @@ def asked(method: str, rng_seed: int, budget: int = 200, **changed) -> list[Quer
     return seen
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", SLOW_GP)
 def test_the_same_rng_seed_gives_the_same_queries_and_leaves_global_random_states_alone(method):
     np.random.seed(123)
     torch.manual_seed(123)
@@ -71,7 +72,7 @@ def test_a_search_says_no_line_per_ticket_and_leaves_optunas_log_level_as_it_was
     assert not [r for r in caplog.records if r.name.startswith("optuna")]
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", SLOW_GP)
 def test_w_0_first_then_tickets_within_the_bound_on_every_search_seed(method):
     queries = asked(method, 0, bound=0.5)
     assert not queries[0].ticket.any() and all(q.seeds == SEEDS for q in queries)

@@ -7,7 +7,7 @@ import torch
 
 from goldenticket.cli import main
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Judged, VerdictRow, judged_arms
+from goldenticket.evaluation import Arm, Verdict, VerdictRow, judged_arms
 from goldenticket.evaluation import multitask_verdict as verdict
 from goldenticket.multitask import greedy_cover
 from goldenticket.policies import MLPPolicy, PolicyConfig
@@ -75,9 +75,9 @@ def test_multitask_search_judges_each_task_on_unsearched_seeds(mt_policy, tmp_pa
                  "--plot", str(tmp_path / "e.png")]) == 0
 
 
-def _arms(**outcomes: list[bool]) -> dict[str, Judged]:
-    return judged_arms({label: [EpisodeResult(seed, s, float(s), 1, 0.0) for seed, s in enumerate(arm)]
-                   for label, arm in outcomes.items()})
+def _arms(**outcomes: list[bool]) -> Verdict:
+    return judged_arms({Arm.of(key): [EpisodeResult(seed, s, float(s), 1, 0.0) for seed, s in enumerate(arm)]
+                        for key, arm in outcomes.items()})
 
 
 def test_no_regression_passes_over_a_ticket_worse_on_one_task():
@@ -87,10 +87,23 @@ def test_no_regression_passes_over_a_ticket_worse_on_one_task():
         "y": _arms(base=[True] * 10 + [False] * 10, zero=[False] * 20, A=[False] * 20,
                    B=[True] * 10 + [False] * 10),
     }
-    assert verdict(per_task, ["A", "B"], no_regression=False).best == "A"
-    guarded = verdict(per_task, ["A", "B"], no_regression=True)
-    assert guarded.best == "B" and guarded.regressions == {"A": ["y"], "B": []}
-    assert verdict({"y": per_task["y"]}, ["A"], no_regression=True).best is None
+    a, b = Arm.ticket("A"), Arm.ticket("B")
+    assert verdict(per_task, no_regression=False).best == a
+    guarded = verdict(per_task, no_regression=True)
+    assert guarded.best == b and guarded.regressions == {a: ["y"], b: []}
+    only_a = _arms(base=[True] * 10 + [False] * 10, zero=[False] * 20, A=[False] * 20)
+    assert verdict({"y": only_a}, no_regression=True).best is None
+    assert guarded.to_dict()["regressions"] == {"A": ["y"], "B": []} and guarded.to_dict()["best"] == "B"
+
+
+def test_judging_several_tasks_twice_gives_the_same_p_values():
+    per_task = {"x": _arms(base=[False] * 20, zero=[False] * 20, A=[True] * 8 + [False] * 12,
+                           B=[True] * 6 + [False] * 14),
+                "y": _arms(base=[False] * 20, zero=[False] * 20, A=[True] * 5 + [False] * 15,
+                           B=[False] * 20)}
+    first = verdict(per_task, no_regression=False)
+    assert verdict(per_task, no_regression=False) == first  # nothing adjusted in place, so never twice
+    assert first.average[Arm.ticket("A")].p_vs_base == 2 * 0.5 ** 13  # 13 wins of 13, Holm over 2
 
 
 def test_greedy_cover_picks_the_fewest_tickets_and_falls_back_to_the_best():
@@ -107,7 +120,7 @@ def test_greedy_cover_picks_the_fewest_tickets_and_falls_back_to_the_best():
     # A and B each cover two tasks, B with the larger gain; then A covers t2; t4: no ticket beats
     # the base; t5: C beats it, not significantly
     assert cover.tickets == ("B", "A") and cover.fallbacks == ("C",)
-    uses = {t: use for t, (use, _) in cover.table.items()}
+    uses = {t: use.key for t, (use, _) in cover.table.items()}
     assert uses == {"t1": "B", "t2": "A", "t3": "B", "t4": "base", "t5": "C"}
 
 

@@ -9,7 +9,7 @@ import pytest
 
 import goldenticket
 from goldenticket.errors import UserError
-from goldenticket.evaluation import Evaluator, judge
+from goldenticket.evaluation import BASE, ZERO, Arm, Evaluator, judge
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.report import verdict_table
 from goldenticket.rollout import NONFINITE, Engine
@@ -20,7 +20,7 @@ from byo_example import BiasedController, make_env  # noqa: E402
 
 SEEDS = seeds_in("heldout", 30)
 TASK = get_task("byo_example:make_env", max_steps=10)
-ZERO = Constant(np.zeros((4, 2), np.float32))
+ZEROS = Constant(np.zeros((4, 2), np.float32))
 
 
 class NoiseBreaks(BiasedController):
@@ -40,7 +40,7 @@ class NoiseBreaks(BiasedController):
         return actions
 
 
-def _judged(policy, sources: dict) -> dict:
+def _judged(policy, sources: dict):
     with Engine(policy, TASK, shard_size=8) as engine:
         return judge(Evaluator(engine), sources, SEEDS, Gaussian(0))
 
@@ -59,16 +59,16 @@ def test_a_base_often_non_finite_gets_a_verdict_counting_its_non_finite_episodes
 def test_a_ticket_that_breaks_the_policy_is_judged_failing_and_the_run_goes_on():
     breaking = np.zeros((4, 2), np.float32)
     breaking[0, 0] = 3
-    judged = _judged(NoiseBreaks(), {"zero": ZERO, "breaking": Constant(breaking)})
-    ticket = judged["breaking"]
-    assert ticket.nonfinite > 0.5 * len(SEEDS) and judged["base"].nonfinite <= 0.1 * len(SEEDS)
+    verdict = _judged(NoiseBreaks(), {ZERO: ZEROS, Arm.ticket("breaking"): Constant(breaking)})
+    ticket, rows = verdict.arms[Arm.ticket("breaking")], verdict.rows
+    assert ticket.nonfinite > 0.5 * len(SEEDS) and rows[BASE].nonfinite <= 0.1 * len(SEEDS)
     assert all(not r.success for r in ticket.results if r.cause == NONFINITE)
-    assert not ticket.row().golden and judged["zero"].nonfinite == 0
+    assert not rows[Arm.ticket("breaking")].golden and rows[ZERO].nonfinite == 0
 
 
 def test_a_ticket_run_alone_never_stops_on_non_finite_actions():
     with Engine("byo_example:make_nan_policy", TASK, shard_size=8) as engine:
-        results = Evaluator(engine).run([("some-ticket", ZERO, SEEDS)])[0]
+        results = Evaluator(engine).run([("some-ticket", ZEROS, SEEDS)])[0]
     assert all(r.cause == NONFINITE for r in results)
 
 
@@ -78,7 +78,7 @@ def test_base_and_zero_both_over_the_limit_stop_the_run_naming_both_arms():
             r".*policy or its adapter is broken")
     ticket = Constant(np.ones((4, 2), np.float32))
     with pytest.raises(UserError, match=says):
-        _judged("byo_example:make_nan_policy", {"zero": ZERO, "ticket": ticket})
+        _judged("byo_example:make_nan_policy", {ZERO: ZEROS, Arm.ticket("ticket"): ticket})
 
 
 @pytest.mark.slow

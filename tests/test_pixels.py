@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from goldenticket import checks
 from goldenticket.errors import UserError
 from goldenticket.noise import Constant, Gaussian
 from goldenticket.policies import MLPPolicy, PolicyConfig
@@ -57,7 +58,7 @@ def test_skipping_unseen_frames_changes_no_episode():
 
 def test_check_refuses_frames_that_vary(monkeypatch):
     task = get_task(TASK)
-    task.check()
+    checks.require(task)
     drawn = iter(range(10**6))
     original = pixels_module.PixelsEnv._observed
 
@@ -67,8 +68,8 @@ def test_check_refuses_frames_that_vary(monkeypatch):
         return obs
 
     monkeypatch.setattr(pixels_module.PixelsEnv, "_observed", flickering)
-    with pytest.raises(UserError, match="different frames for the same seed"):
-        task.check()
+    with pytest.raises(UserError, match=r"does not fix the initial state \(.*: its 'pixels' differ\)"):
+        checks.require(task)
 
 
 def test_a_renderer_with_a_display_backend_is_one_line(monkeypatch):
@@ -148,6 +149,7 @@ def test_an_image_search_from_the_cli(tmp_path, capsys):
     assert "base" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_an_image_policy_on_a_state_task_is_one_line(capsys):
     from goldenticket.cli import main
 
@@ -157,6 +159,7 @@ def test_an_image_policy_on_a_state_task_is_one_line(capsys):
     assert len(errors) == 1 and "sees images" in errors[0]
 
 
+@pytest.mark.slow
 def test_a_state_policy_on_a_camera_task_is_one_line(capsys):
     from goldenticket.cli import main
 

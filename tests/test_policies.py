@@ -45,7 +45,7 @@ def test_bad_policy_inputs(tmp_path):
     with pytest.raises(UserError, match="unknown policy"):
         load_policy("metaworld/nope/flow")
     (tmp_path / "config.json").write_text("{not json")
-    with pytest.raises(UserError, match="cannot load policy"):
+    with pytest.raises(UserError, match="config.json: not a JSON file"):
         MLPPolicy.load(tmp_path)
 
 

@@ -209,6 +209,22 @@ def test_halved_validation_runs_the_better_half_on_the_next_seeds_while_more_tha
 @pytest.mark.parametrize(("tickets", "keep", "blocks", "sizes"),
                          [(10, 3, 4, [10, 5]), (20, 3, 4, [20, 10, 5]), (10, 3, 1, [10]), (4, 3, 4, [4])])
 def test_halving_sizes_stop_where_the_half_would_not_be_more_than_to_keep(tickets, keep, blocks, sizes):
-    from goldenticket.job.stages import halving_sizes
+    from goldenticket.ticket_search.racing import halving_sizes
 
     assert halving_sizes(tickets, keep, blocks) == sizes
+
+
+def test_a_race_cuts_after_each_round_but_its_last_and_is_over_once_nobody_is_left():
+    from goldenticket.ticket_search.racing import Race, better_half
+
+    race = Race(5, better_half, sum, rounds=3)
+    race.record([1, 3, 3, 0, 2])
+    assert race.alive == [1, 2] and not race.over  # the better half; of the tied, the earlier first
+    race.record([0, 1])
+    assert race.alive == [2] and race.ranked() == [2]
+    race.record([5])
+    assert race.over and race.alive == [2] and race.results == [[1], [3, 0], [3, 1, 5], [0], [2]]
+    dropped = Race(3, lambda race: [], sum)  # no last round: over once the cut leaves nobody
+    dropped.record([1, 2, 3])
+    assert dropped.over and dropped.alive == []
+    assert Race(0, better_half, sum).over

@@ -9,6 +9,7 @@ import time
 import numpy as np
 import pytest
 
+from goldenticket import checks
 from goldenticket.tasks import get_task
 from goldenticket.tasks.base import observation_digest
 
@@ -36,7 +37,7 @@ def test_observations_are_robomimics_low_dim_keys_in_dppos_order(name):
 @pytest.mark.parametrize("name", ["robomimic/lift", "robomimic/can"])
 def test_every_seed_is_one_initial_state_in_any_env_and_process(name):
     task = get_task(name)
-    task.check()
+    checks.require(task)
     env = task.make_env()
     assert observation_digest(env.reset(3)) != observation_digest(env.reset(4))
 
@@ -105,11 +106,9 @@ def test_training_on_a_task_without_a_scripted_expert_is_one_line(tmp_path, caps
 
 @pytest.fixture
 def unchecked(monkeypatch):
-    """CLI runs without the task's repeatability check (it builds envs here and in a second process,
-    seconds a run); test_every_seed_is_one_initial_state_in_any_env_and_process runs it."""
-    from goldenticket.tasks.robomimic import RobomimicTask
-
-    monkeypatch.setattr(RobomimicTask, "check", lambda self: None)
+    """CLI runs without the task's repeatability checks (they build envs here and in a second process,
+    seconds a run); test_every_seed_is_one_initial_state_in_any_env_and_process runs them."""
+    monkeypatch.setattr(checks, "TASK_CHECKS", {})
 
 
 def test_a_dppo_checkpoint_trained_on_lift_demonstrations_is_searched_alike_by_1_and_2_workers(tmp_path,

@@ -55,9 +55,22 @@ def test_episodes_are_the_recorded_ones_under_every_kernel_setting():
 
 
 def test_other_openblas_kernels_are_noted_once():
-    code = ("from goldenticket.tasks.robomimic import note_kernels\n"
+    code = ("import numpy\nfrom goldenticket.kernels import note as note_kernels\n"
             "note_kernels(); note_kernels()")
     other = _run({"OPENBLAS_CORETYPE": "Sandybridge"}, code)
     assert other.returncode == 0 and other.stderr.count("OPENBLAS_CORETYPE=Haswell") == 1
     assert "Sandybridge kernels" in other.stderr
     assert _run({"OPENBLAS_CORETYPE": "Haswell"}, code).stderr == ""
+
+
+def test_the_command_runs_the_recorded_numbers_kernels_by_itself():
+    code = ("import sys\nfrom goldenticket.cli import main\n"
+            "rc = main(['evaluate', '--policy', 'robomimic/lift/ddim', '--task', 'robomimic/lift', "
+            "'--seeds', '1000000:1000001', '--json'])\n"
+            "from goldenticket.kernels import openblas_kernels\n"
+            "print(rc, openblas_kernels(), file=sys.stderr)")
+    run = _run({}, code)
+    assert run.stderr.splitlines()[-1] == "0 Haswell", run.stderr
+    assert "note:" not in run.stderr  # no advice to set a variable: the command chose the kernels
+    chosen = _run({"OPENBLAS_CORETYPE": "Sandybridge"}, code)  # a user's own choice stands
+    assert chosen.stderr.splitlines()[-1] == "0 Sandybridge" and "OPENBLAS_CORETYPE=Haswell" in chosen.stderr

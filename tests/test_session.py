@@ -471,6 +471,7 @@ def test_a_plan_that_is_not_json_is_one_clear_error(tmp_path, capsys):
     assert len(errors) == 1 and "damaged" in errors[0]
 
 
+@pytest.mark.slow
 def test_input_that_is_not_utf8_stops_the_terminal_scorer_in_one_line(tmp_path):
     Session.new(tmp_path, _plan())
     proc = subprocess.run([sys.executable, "-m", "goldenticket.cli", "session", "score", str(tmp_path)],

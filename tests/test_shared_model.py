@@ -16,6 +16,7 @@ from goldenticket.tasks import get_task, seeds_in
 sys.path.insert(0, str(Path(__file__).parent))  # byo_example, here and in worker processes
 
 
+@pytest.mark.slow
 def test_workers_sharing_one_policy_give_the_results_of_workers_with_their_own():
     task = get_task("metaworld/pick-place-v3", max_steps=60)
     ticket = np.random.default_rng(0).standard_normal((8, 4)).astype(np.float32)
@@ -35,6 +36,7 @@ def test_on_the_cpu_workers_load_their_own_policy_unless_asked():
         assert engine._server is None
 
 
+@pytest.mark.slow
 def test_an_error_in_the_shared_policy_reaches_the_run_as_one_line():
     task = get_task("byo_example:make_env", max_steps=5)
     line = r"act\(\) failed at .*byo_example.py:\d+: KeyError: 'velocity'"

@@ -220,9 +220,10 @@ def test_ticket_id_names_one_ticket_for_one_policy():
 
 
 def test_ambiguous_bundled_ticket_id_lists_the_candidates(tmp_path, monkeypatch):
-    from goldenticket.policies import find_ticket, registry
+    from goldenticket import zoo
+    from goldenticket.policies import find_ticket
 
-    monkeypatch.setattr(registry, "BUNDLED_DIR", tmp_path)
+    monkeypatch.setattr(zoo, "BUNDLED_DIR", tmp_path)
     for policy in ("a/flow", "b/flow"):
         Ticket(noise(0)).save(tmp_path / policy / "tickets" / "abcabcabcabc.safetensors")
     with pytest.raises(UserError, match="ambiguous.*a/flow.*b/flow"):

@@ -98,7 +98,7 @@ def test_a_worker_that_dies_ends_the_run_in_one_line_keeping_the_shards_before(t
             ("base", 16)]
 
 
-def test_a_worker_whose_main_process_has_gone_ends_quietly():
+def test_a_worker_whose_main_process_has_gone_ends_quietly(capfd):
     """Its answers have nowhere to go (the main process was killed): no traceback, it just ends."""
     import pickle
 
@@ -108,6 +108,7 @@ def test_a_worker_whose_main_process_has_gone_ends_quietly():
     main_end.send((abs, -1))  # a shard was sent, then the main process went
     main_end.close()
     _serve(worker_end, pickle.dumps((int, ())))
+    assert capfd.readouterr() == ("", "")
 
 
 @pytest.mark.slow
@@ -120,22 +121,29 @@ def test_a_worker_that_cannot_build_the_policy_ends_the_run_in_one_line():
     assert proc.stderr.endswith(": RuntimeError: no device in this process\n")
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("policy, task, workers", [
-    ("metaworld/reach-v3/flow", "metaworld/reach-v3", 2),  # the workers re-run the main script
-    ("byo_example:make_policy", TASK, 1),  # so does the check that a spawned process rebuilds the env
-])
-def test_a_script_read_from_standard_input_stops_at_once_in_one_line(tmp_path, policy, task, workers):
+def _from_standard_input(tmp_path, policy: str, task: str, workers: int) -> subprocess.CompletedProcess:
     script = tmp_path / "script.py"
     argv = ["evaluate", "--policy", policy, "--task", task, "--seeds", "1000000:1000004", "--max-steps", "10",
             "--workers", str(workers)]
     script.write_text(f"import sys\nfrom goldenticket.cli import main\n\nif __name__ == '__main__':\n"
                       f"    sys.exit(main({argv!r}))\n")
     with script.open() as stdin:
-        proc = _own_process([sys.executable, "-"], timeout=120, stdin=stdin, cwd=HERE)
+        return _own_process([sys.executable, "-"], timeout=120, stdin=stdin, cwd=HERE)
+
+
+@pytest.mark.slow
+def test_a_script_read_from_standard_input_stops_at_once_in_one_line_before_workers(tmp_path):
+    proc = _from_standard_input(tmp_path, "metaworld/reach-v3/flow", "metaworld/reach-v3", 2)  # spawned
     assert proc.returncode == 2 and len(proc.stderr) < 500, proc.stderr[:3000]
     assert proc.stderr.startswith("goldenticket: error: ") and len(proc.stderr.splitlines()) == 1, proc.stderr
     assert f"re-runs the main script, {HERE / '<stdin>'}, which is not a file" in proc.stderr
+
+
+@pytest.mark.slow
+def test_a_script_read_from_standard_input_runs_in_one_process(tmp_path):
+    """The check that another process rebuilds the env starts a new interpreter, not the script."""
+    proc = _from_standard_input(tmp_path, "byo_example:make_policy", TASK, 1)
+    assert proc.returncode == 0 and "ticket" not in proc.stderr, proc.stderr[-3000:]
 
 
 def _numbers(results) -> list[tuple]:

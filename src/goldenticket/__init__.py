@@ -31,7 +31,7 @@ def search(policy, task, out: str | Path, **options):
     of `config.SearchConfig` (method, budget, seed, search_seeds, heldout, top_k, objective,
     front_objective, stop_after_perfect, max_tickets, race, halving, max_steps, success, subspace,
     validation_seeds, no_regression, tickets, log, optimizer, workers, backend, address,
-    max_nonfinite)."""
+    max_nonfinite, device, step_timeout)."""
     from goldenticket.config import SearchConfig, make
     from goldenticket.job import find_golden_tickets
 
@@ -47,11 +47,11 @@ def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
     `success` default to those the tickets were found under (a task or predicate that is code, an
     import string, only when given here: a ticket never runs code it names). `options`: the other
     fields of `config.EvaluateConfig` (seed, max_steps, success, allow_transfer, mixture, epsilon,
-    workers, backend, address, max_nonfinite)."""
+    workers, backend, address, max_nonfinite, device, step_timeout)."""
     from goldenticket.config import EvaluateConfig, make
     from goldenticket.job.evaluate import evaluate_tickets
 
     seeds = seeds if isinstance(seeds, range) else list(seeds)
     cfg = make(EvaluateConfig, {"policy": policy, "task": task, "tickets": tickets,
                                 "seeds": seeds} | options)
-    return evaluate_tickets(cfg)
+    return {arm.key: row for arm, row in evaluate_tickets(cfg).items()}

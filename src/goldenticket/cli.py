@@ -4,6 +4,8 @@ flow-matching policy succeed more often, and prove it on held-out initial states
 from __future__ import annotations
 
 import argparse
+import contextlib
+import faulthandler
 import json
 import os
 import signal
@@ -15,8 +17,10 @@ import typing
 from dataclasses import MISSING, fields
 from pathlib import Path
 
-from goldenticket import __version__
+from goldenticket import __version__, kernels
 from goldenticket.config import (
+    CheckConfig,
+    CompareConfig,
     EvaluateConfig,
     SearchConfig,
     ServeConfig,
@@ -24,15 +28,18 @@ from goldenticket.config import (
     TrainConfig,
     TransferOptions,
     cli_fields,
-    field_types,
     make,
     read_toml,
     seed_range,
     spelled_flags,
 )
 from goldenticket.errors import OptionError, UserError, flag, flags_in
+from goldenticket.files import check_target
+from goldenticket.options import field_types
+from goldenticket.zoo import bundled_task, check_name, find_ticket
 
 DEMO_POLICY, DEMO_TASK = "metaworld/pick-place-v3/flow", "metaworld/pick-place-v3"
+PENDING = "(the policy's own task)"  # stands in for a task found later, while the other options are checked
 RESUME = dict.fromkeys(("demo", "search", "transfer"),
                        " (finished episodes are kept in --out: rerun the same command to resume)")
 
@@ -66,6 +73,8 @@ class _Parser(argparse.ArgumentParser):
         super().__init__(formatter_class=_HelpFormatter, **kwargs)
 
     def error(self, message: str):  # one clear line, exit 2
+        if message.startswith("argument --seed: invalid int value") and ":" in message.partition("value:")[2]:
+            message += "; --seed is the run's random seed, a range of seeds A:B is --seeds"
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
 
 
@@ -179,9 +188,32 @@ def _search_parser(sub) -> None:
 def _evaluate_parser(sub) -> None:
     ev = sub.add_parser("evaluate", help="judge tickets against the base policy on held-out seeds")
     _config_flags(ev, EvaluateConfig)
-    ev.add_argument("--plot", type=Path, default=None,
-                    help="write a PNG of success with intervals per arm to this file (default: none)")
-    ev.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    _plot_and_json_args(ev)
+
+
+def _compare_parser(sub) -> None:
+    cmp = sub.add_parser("compare", help="policy A against policy B (or one policy with and without a "
+                                         "ticket) on the same held-out seeds: a paired A/B test")
+    _config_flags(cmp, CompareConfig)
+    cmp.add_argument("--out", type=_folder, default=None,
+                     help="folder for the run store (run.sqlite: every episode; rerun the same command to "
+                          "resume, or with more seeds to add them) (default: none, nothing written)")
+    _plot_and_json_args(cmp)
+
+
+def _plot_and_json_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--plot", type=Path, default=None,
+                   help="write a PNG of success with intervals per arm to this file (default: none)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+
+
+def _check_plot(path: Path | None) -> None:
+    """UserError, before any episode, unless --plot names a new or regular file in a folder one can
+    write to."""
+    if path is not None:
+        check_target(path)
+        if not path.parent.is_dir() or not os.access(path.parent, os.W_OK):
+            raise UserError(f"--plot {path}: name a new file in a folder you can write to")
 
 
 def _train_parser(sub) -> None:
@@ -204,7 +236,10 @@ def _parser() -> argparse.ArgumentParser:
     _search_parser(sub)
     _transfer_parser(sub)
     _evaluate_parser(sub)
+    _compare_parser(sub)
     _train_parser(sub)
+    _config_flags(sub.add_parser("check", help="check a policy on a task before a search: the checks every "
+                                               "search runs, one line each"), CheckConfig, config_file=False)
     sub.add_parser("policies", help="list bundled policies with their measured success").add_argument(
         "--json", action="store_true", help="print the model cards as one JSON list")
     tickets = sub.add_parser("tickets", help="inspect ticket files and the bundled golden tickets")
@@ -246,7 +281,9 @@ def _joined_seed_ranges(argv: list[str]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(_joined_seed_ranges(sys.argv[1:] if argv is None else argv))
     previous = {s: signal.signal(s, _raise_interrupted) for s in (signal.SIGINT, signal.SIGTERM)}
+    _trace_crashes()
     try:
+        kernels.pin(_names(args))
         return COMMANDS[args.command](args)
     except UserError as exc:
         if args.verbose:
@@ -269,6 +306,22 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(s, handler)
 
 
+def _names(args) -> list:
+    """The policy and tasks a command names (its flags, then its --config file's), before any runs."""
+    given = read_toml(args.config) if getattr(args, "config", None) else {}
+    given |= {key: getattr(args, key) for key in ("policy", "against", "task") if hasattr(args, key)}
+    task = given.get("task")
+    return [given.get("policy"), *(task if isinstance(task, list | tuple) else [task])]
+
+
+def _trace_crashes() -> None:
+    """A crash in C code (a segfault in an env's simulator, say) prints the Python traceback of the call
+    it happened in (as each local worker does before the one line saying how it ended)."""
+    if not faulthandler.is_enabled():
+        with contextlib.suppress(AttributeError, OSError, RuntimeError, ValueError):  # stderr is no file
+            faulthandler.enable()
+
+
 def _raise_interrupted(signum: int, frame) -> None:
     for s in (signal.SIGINT, signal.SIGTERM):  # a second signal must not interrupt the clean-up
         signal.signal(s, signal.SIG_IGN)
@@ -286,13 +339,25 @@ def _demo(args) -> int:
 
 
 def _search(args) -> int:
-    return _run_search(make(SearchConfig, _with_bundled_task(_options(args, SearchConfig))), args.out)
+    options = _options(args, SearchConfig)
+    make(SearchConfig, {"task": PENDING} | options).check()  # a bad option answers before anything loads
+    _check_names(options)
+    return _run_search(make(SearchConfig, _with_bundled_task(options)), args.out)
+
+
+def _check_names(options: dict) -> None:
+    """A misspelt policy or task name answers before any model or simulator loads."""
+    check_name(options.get("policy"))
+    tasks = options.get("task")
+    if tasks is not None:
+        from goldenticket.tasks.registry import check_task
+
+        for task in tasks if isinstance(tasks, list | tuple) else [tasks]:
+            check_task(task)
 
 
 def _with_bundled_task(options: dict) -> dict:
     """The options, with the task a bundled single-task policy was trained on where none is given."""
-    from goldenticket.policies.registry import bundled_task
-
     if "task" in options or not isinstance(options.get("policy"), str):
         return options
     task = bundled_task(options["policy"])
@@ -300,15 +365,17 @@ def _with_bundled_task(options: dict) -> dict:
 
 
 def _transfer(args) -> int:
-    from goldenticket.multitask import transfer
-    from goldenticket.report import transfer_text
-
     options = _options(args, SearchConfig, skip=("tickets",))
     own = make(TransferOptions, {"budget": options.get("budget"), "tickets": getattr(args, "tickets", ())})
     own.check()
     cfg = make(SearchConfig, options)
     if len(cfg.tasks) < 2:
         raise UserError("transfer needs at least two --task")
+    cfg.check()
+
+    from goldenticket.multitask import transfer
+    from goldenticket.report import transfer_text
+
     start = time.perf_counter()
     print(transfer_text(transfer(cfg, args.out, list(own.tickets))))
     print(f"Wrote {args.out / 'transfer.json'}, transfer.csv and transfer.png in "
@@ -317,6 +384,7 @@ def _transfer(args) -> int:
 
 
 def _run_search(cfg, out: Path) -> int:
+    cfg.check()
     from goldenticket.job import find_golden_tickets
     from goldenticket.report import multitask_text, verdict_text
 
@@ -327,7 +395,7 @@ def _run_search(cfg, out: Path) -> int:
         print(f"Tickets saved in {out / 'tickets'}. Wrote {out / 'summary.json'}, verdict.png and search.png "
               f"in {time.perf_counter() - start:.0f} s.")
         return 0
-    print(verdict_text(s.rows(), s.best.heldout, s.best.name, s.p_value_note))
+    print(verdict_text(s.table(), s.best.heldout, s.best.name, s.p_value_note))
     if s.front is not None:
         print(f"Pareto front ({cfg.objective} vs {cfg.front_objective}): {len(s.front.tickets)} tickets "
               f"({', '.join(s.front.tickets)}), judged on the held-out seeds in {out / 'front.json'} and "
@@ -338,50 +406,71 @@ def _run_search(cfg, out: Path) -> int:
 
 
 def _evaluate(args) -> int:
-    from goldenticket.evaluation import p_value_note, to_dicts
-    from goldenticket.files import check_target
+    cfg = make(EvaluateConfig, _options(args, EvaluateConfig))
+    cfg.check()  # a bad option, policy or task name or ticket answers before anything loads
+    _check_names({"policy": cfg.policy, "task": cfg.task})
+    paths = [find_ticket(ref) for ref in cfg.tickets]
+    _check_plot(args.plot)
+    from goldenticket.evaluation import BASE, MIXTURE, ZERO, Kind, p_value_note, to_dicts
     from goldenticket.job.evaluate import evaluate_tickets, found_under
     from goldenticket.plots import arms_png
-    from goldenticket.policies import find_ticket
     from goldenticket.report import verdict_text
-    from goldenticket.results import arm_rows
+    from goldenticket.results import VerdictTable
     from goldenticket.tickets import Ticket
 
-    cfg = make(EvaluateConfig, _options(args, EvaluateConfig))
-    paths = [find_ticket(ref) for ref in cfg.tickets]
-    if args.plot is not None:
-        check_target(args.plot)
-        if not args.plot.parent.is_dir() or not os.access(args.plot.parent, os.W_OK):
-            raise UserError(f"--plot {args.plot}: name a new file in a folder you can write to")
     rows = evaluate_tickets(cfg)
-    tickets = {label: r for label, r in rows.items() if label not in ("base", "zero", "mixture")}
-    arms = arm_rows(rows["base"], rows["zero"], tickets)
+    tickets = {arm: r for arm, r in rows.items() if arm.kind is Kind.TICKET}
+    shown = {arm.label: r for arm, r in tickets.items()}
     if cfg.mixture:
         epsilon = f", eps {cfg.epsilon:g}" if cfg.epsilon else ""
-        arms[f"mixture of {len(tickets)}{epsilon}"] = rows["mixture"]
-    candidates = tickets or {"zero": rows["zero"]}
+        shown[f"mixture of {len(tickets)}{epsilon}"] = rows[MIXTURE]
+    table = VerdictTable(rows[BASE], rows[ZERO], shown)
+    candidates = tickets or {ZERO: rows[ZERO]}
     best = max(candidates, key=lambda t: (candidates[t].rate.success_rate, -candidates[t].p_vs_base))
     if args.plot is not None:
         task = cfg.task or found_under([Ticket.load(p) for p in paths], {"task": None})["task"]
         title = f"{cfg.policy} on {task}, seeds {cfg.seeds.start}:{cfg.seeds.stop}"
-        arms_png(arms, args.plot, title, best=f"ticket {best}")
+        arms_png(table.rows(), args.plot, title, best=best.label)
     if args.json:
         print(json.dumps(to_dicts(rows), indent=2))
     else:
-        print(verdict_text(arms, candidates[best], best, p_value_note(len(arms) - 2)))
+        print(verdict_text(table, candidates[best], best.key, p_value_note(table.adjusted_over)))
         if cfg.mixture:
+            spread = ", ".join(f"{label} {r.diversity:.3f}" for label, r in table.rows().items())
             print("diversity (RMS spread of executed actions across 5 noise streams from each of the first "
-                  "10 seeds): " + ", ".join(f"{label} {r.diversity:.3f}" for label, r in arms.items()))
+                  f"10 seeds): {spread}")
         if args.plot is not None:
             print(f"Wrote {args.plot}.")
     return 0
 
 
 def _train(args) -> int:
+    cfg = make(TrainConfig, _options(args, TrainConfig))
+    cfg.check()
     from goldenticket.train import build_policy
 
-    build_policy(make(TrainConfig, _options(args, TrainConfig)), args.out)
+    build_policy(cfg, args.out)
     print(f"Wrote {args.out} (config.json, model.safetensors, MODEL_CARD.md).")
+    return 0
+
+
+def _check(args) -> int:
+    options = _options(args, CheckConfig)
+    make(CheckConfig, {"task": PENDING} | options).check()
+    cfg = make(CheckConfig, _with_bundled_task(options))
+    cfg.check()
+    from goldenticket.checks import results
+    from goldenticket.policies import load_policy
+    from goldenticket.tasks import get_task
+
+    policy = load_policy(cfg.policy, cfg.device, **cfg.policy_settings())
+    task = get_task(cfg.task, success=cfg.success)
+    ran = []
+    for result in results(task, policy):
+        print(result, flush=True)
+        ran.append(result)
+    if failed := [r.name for r in ran if not r.passed]:
+        raise UserError(f"{len(failed)} of {len(ran)} checks failed: {'; '.join(failed)}")
     return 0
 
 
@@ -402,7 +491,6 @@ def _policies(args) -> int:
 def _tickets(args) -> int:
     import numpy as np
 
-    from goldenticket.policies import find_ticket
     from goldenticket.tickets import Ticket
 
     if args.tickets_command == "list":
@@ -462,9 +550,10 @@ def _session(args) -> int:
 
 
 CONFIGS = {"demo": (SearchConfig,), "search": (SearchConfig,), "transfer": (TransferOptions, SearchConfig),
-           "evaluate": (EvaluateConfig,), "train": (TrainConfig,), "session": (SessionConfig, ServeConfig)}
+           "evaluate": (EvaluateConfig,), "train": (TrainConfig,), "check": (CheckConfig,),
+           "session": (SessionConfig, ServeConfig)}
 COMMANDS = {"demo": _demo, "search": _search, "transfer": _transfer, "evaluate": _evaluate, "train": _train,
-            "policies": _policies, "tickets": _tickets, "session": _session}
+            "check": _check, "policies": _policies, "tickets": _tickets, "session": _session}
 
 if __name__ == "__main__":
     sys.exit(main())

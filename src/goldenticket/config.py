@@ -1,6 +1,7 @@
-"""Every option of a search, an evaluation, a training run, a transfer and a real-robot session,
-and every search method's settings, once: typed fields with their defaults and help. Pure data and
-checks: it imports nothing of goldenticket's but errors, factories, seeds and objectives.
+"""Every option of a search, an evaluation, a training run, a transfer, a real-robot session and a
+check, once: typed fields with their defaults and help (`options.option`); each search method's
+settings are its own, in `ticket_search.methods`. Pure data and checks: it imports nothing of
+goldenticket's but errors, options, factories, seeds, objectives and those settings.
 
 The command line's flags are generated from these fields (`cli.py`: field `search_seeds` is
 `--search-seeds`), a run can be given as a TOML file whose keys are the fields, and every search's
@@ -11,32 +12,26 @@ that folder alone: `goldenticket search --config runs/x/config.toml`.
 from __future__ import annotations
 
 import argparse
-import functools
 import importlib
 import json
 import tomllib
-import typing
 from collections.abc import Callable, Sequence
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
-from types import UnionType
 
 from goldenticket.errors import OptionError, UserError
 from goldenticket.factories import import_name
 from goldenticket.objectives import FRONT_OBJECTIVES, OBJECTIVES
-from goldenticket.seeds import SEED_SETS
+from goldenticket.options import check_types, option
+from goldenticket.seeds import SEED_SETS, require_heldout
+from goldenticket.ticket_search.methods import METHODS, SELF_RACING, method_settings
 
 MAX_NONFINITE = 0.1  # default: stop once base and zero ticket both pass this fraction of non-finite episodes
+STEP_TIMEOUT = 600.0  # default seconds an env step or a policy call may take: hangs end, slow simulators run
 SINKS = {"tensorboard": "tensorboard", "wandb": "wandb"}  # a `log` sink (tracking.py) -> the package it needs
 SEEDS_END = max(block.stop for block in SEED_SETS.values())  # every seed set lies in 0:SEEDS_END
 DEFAULT_CONFIRM = {"sequential": 70, "fixed": 50}  # a session's confirm episodes per stopping rule (never
 # more episodes under sequential stopping than under fixed)
-
-
-def option(default=MISSING, help: str = "", **cli) -> field:
-    """A config field (one without a default must be given); `cli` holds how the command line spells
-    it beyond the generated flag (choices, action, its own flag)."""
-    return field(default=default, metadata={"help": help, "cli": cli})
 
 
 POLICY_HELP = ("bundled policy name (see `goldenticket policies`) or a folder written by `train` (append "
@@ -46,155 +41,59 @@ TASK_HELP = ("task name, e.g. metaworld/pick-place-v3, robomimic/lift, libero/ob
 SUCCESS_HELP = ("Gymnasium tasks: package.module:function(obs, info) -> bool deciding success "
                 "(default: info['success'] or info['is_success'])")
 
-
-METHODS: dict[str, type] = {}  # a search method's name -> the dataclass of its settings
-SELF_RACING = ("cem-racing", "cem-bounds")  # methods that race their own tickets: no race, no halving
 HALVING_UP_TO = 1100  # search episodes up to which halving is the default (the budget curve's rule)
 
 
-def method(name: str):
-    """Register the decorated settings dataclass as search method `name`'s (the LeRobot
-    `register_subclass` pattern): `--method name` and `optimizer = {...}` in a config file."""
-    def register(cls):
-        METHODS[name] = cls
-        return cls
-    return register
-
-
-def method_settings(name: str, values: dict):
-    """Method `name`'s settings with `values` changed; OptionError for an unknown method, setting or
-    a value of the wrong type."""
-    if name not in METHODS:
-        raise OptionError(f"unknown method {name!r}; choose from {list(METHODS)}", "method")
-    cls = METHODS[name]
-    if unknown := sorted(set(values) - {f.name for f in fields(cls)}):
-        raise OptionError(f"unknown optimizer setting {', '.join(unknown)} for {name}; its settings: "
-                          f"{', '.join(f.name for f in fields(cls))}", "optimizer")
-    check_types(cls, values)
-    return cls(**values)
-
-
-@method("rs")
-@dataclass(frozen=True)
-class RandomSearchSettings:
-    """Random search (the paper's Alg. 1): i.i.d. N(0, I) tickets, each on every search seed."""
-
-    batch_size: int = option(50, "tickets per ask")
-    num_tickets: int | None = option(None, "tickets in all (default: until the budget is spent)")
-
-
-@method("cem")
-@dataclass(frozen=True)
-class CEMSettings:
-    """The cross-entropy method (Alg. 2) over a diagonal Gaussian: sample `population`, keep the top
-    `elite_frac`, refit with smoothing `alpha`; sigma floored at `sigma_min`, then inflated by
-    `sigma_extra`."""
-
-    population: int = option(50, "tickets per iteration")
-    elite_frac: float = option(0.2, "fraction of the population refit on")
-    alpha: float = option(1.0, "smoothing of the refit (1: the elites' statistics alone)")
-    sigma_init: float = option(1.0, "initial standard deviation")
-    sigma_min: float = option(0.01, "floor of the standard deviation")
-    sigma_extra: float = option(0.0, "noise added to the standard deviation after each refit")
-    iterations: int | None = option(None, "iterations (default: until the budget is spent)")
-
-
-@method("zos")
-@dataclass(frozen=True)
-class ZerothOrderSettings:
-    """Zeroth-order search (Alg. 3): a random walk on a sphere of `radius` around a pivot."""
-
-    candidates: int = option(10, "tickets per iteration")
-    radius: float = option(0.5, "L2 radius of the steps")
-    iterations: int | None = option(None, "iterations after the pivot (default: until the budget)")
-
-
-@method("cem-racing")
-@dataclass(frozen=True)
-class CEMRacingSettings(CEMSettings):
-    """CEM whose population is raced by sequential halving over `tiers` blocks of search seeds."""
-
-    tiers: int = option(5, "blocks of search seeds; the top half survives each")
-
-
-@method("cem-bounds")
-@dataclass(frozen=True)
-class CEMBoundsSettings(CEMSettings):
-    """CEM whose population is raced with Hoeffding confidence bounds, `block` seeds at a time."""
-
-    block: int = option(4, "search seeds per block")
-    delta: float = option(0.1, "level of each confidence bound")
-    value_range: float = option(1.0, "range of an episode's return")
-
-
-@method("cma-es")
-@dataclass(frozen=True)
-class CMAESSettings:
-    """CMA-ES (the `cma` package) over the flattened ticket."""
-
-    population: int = option(20, "tickets per generation")
-    sigma_init: float = option(1.0, "initial step size")
-    mean: tuple[tuple[float, ...], ...] | None = option(None, "start ticket, rows of the searched shape "
-                                                        "(default: w = 0)")
-    iterations: int | None = option(None, "generations (default: until the budget is spent)")
-
-
-@method("tiled-then-full")
-@dataclass(frozen=True)
-class TiledThenFullSettings:
-    """CMA-ES over a tiled ticket, then CMA-ES over the full ticket from the tiled stage's best (run
-    with the full sub-space)."""
-
-    population: int = option(20, "tickets per generation, in both stages")
-    sigma_init: float = option(1.0, "the tiled stage's initial step size")
-    tiled_generations: int = option(2, "generations of the tiled stage")
-    sigma_full: float = option(0.5, "the full stage's initial step size")
-
-
-@dataclass(frozen=True)
-class ModelBasedSettings:
-    """Model-based search through an Optuna sampler, each searched number in [-bound, bound] and seen
-    by the sampler as its N(0, 1) quantile."""
-
-    batch_size: int = option(4, "tickets per ask (the sampler treats the unscored ones as pending)")
-    startup: int = option(10, "random tickets before the model proposes")
-    bound: float = option(3.0, "each searched number lies in [-bound, bound]")
-    start_at_zero: bool = option(True, "score w = 0 first")
-    num_tickets: int | None = option(None, "tickets in all (default: until the budget is spent)")
-
-
-@method("tpe")
-@dataclass(frozen=True)
-class TPESettings(ModelBasedSettings):
-    """The tree-structured Parzen estimator (Optuna's multivariate TPESampler, constant liar)."""
-
-
-@method("gp")
-@dataclass(frozen=True)
-class GPSettings(ModelBasedSettings):
-    """Bayesian optimisation with a Gaussian process (Optuna's GPSampler: a Matern-5/2 kernel with
-    learned noise, log expected improvement)."""
+RECORDED_SETTINGS = ("rename_map", "policy_override")  # PolicySettings' fields, as tickets record them
 
 
 @dataclass(frozen=True, kw_only=True)
-class EngineOptions:
-    """Where episodes run; results do not depend on it."""
+class PolicySettings:
+    """How a LeRobot checkpoint runs on a task, as `lerobot-eval` takes it (its --rename_map and
+    --policy.KEY=VALUE); tickets record them."""
 
-    workers: int = option(2, "worker processes (results do not depend on it)")
+    rename_map: dict | None = option(
+        None, "LeRobot checkpoints: an env's observation key renamed to the policy's, as lerobot-eval's "
+        "--rename_map, e.g. observation.images.image=observation.images.camera1; repeat for several",
+        key_values=True, metavar="KEY=VALUE")
+    policy_override: dict | None = option(
+        None, "LeRobot checkpoints: a setting of its config.json changed for this run, as lerobot-eval's "
+        "--policy.KEY=VALUE: n_action_steps=N (actions executed per call)", key_values=True,
+        metavar="KEY=VALUE")
+
+    def policy_settings(self) -> dict:
+        """The given ones, as `load_policy` takes them (rename_map, overrides)."""
+        given = {"rename_map": self.rename_map, "overrides": self.policy_override}
+        return {key: value for key, value in given.items() if value}
+
+
+@dataclass(frozen=True, kw_only=True)
+class EngineOptions(PolicySettings):
+    """Where and how episodes run, and how a LeRobot checkpoint runs (PolicySettings). An option that
+    changes no result is declared so (`changes_results=False`): a run's store does not hold it, so a
+    rerun may change it and resume."""
+
+    workers: int = option(2, "worker processes (results do not depend on it)", changes_results=False)
     backend: str = option("local", "where episodes run: local processes, or Ray actors (results do not "
-                          "depend on it)", choices=("local", "ray"))
+                          "depend on it)", changes_results=False, choices=("local", "ray"))
     address: str | None = option(None, "Ray cluster address, e.g. ray://head:10001 (default: start a "
-                                 "local Ray instance)")
+                                 "local Ray instance)", changes_results=False)
     max_nonfinite: float = option(MAX_NONFINITE, "an episode whose policy call returns NaN or infinite "
                                   "actions ends as a failure of its arm; stop (the policy or its adapter "
                                   "broken) only when more than this fraction of the held-out episodes of "
-                                  "both the base and the zero ticket end so")
+                                  "both the base and the zero ticket end so", changes_results=False)
     device: str = option("cpu", "where a LeRobot checkpoint's model runs: cpu, or cuda / cuda:N (there the "
                          "numbers hold for the same GPU model, driver and versions; workers share one model)")
+    step_timeout: float = option(STEP_TIMEOUT, "seconds one env reset or step, or one policy call, may run "
+                                 "before the run stops in one line naming it (finished episodes are kept: a "
+                                 "rerun resumes); 0: no limit", changes_results=False, metavar="SECONDS")
 
     def check(self) -> None:  # workers: the engine knows this machine's limit (rollout.Engine)
         check_max_nonfinite(self.max_nonfinite)
         check_device(self.device)
+        if not 0 <= self.step_timeout < float("inf"):
+            raise OptionError(f"step_timeout must be a number of seconds >= 0 (0: no limit), got "
+                              f"{self.step_timeout}", "step_timeout")
 
 
 def check_device(device: str) -> None:
@@ -272,7 +171,8 @@ class SearchConfig(EngineOptions):
         metavar="TICKET")
     log: tuple[str, ...] | str = option(
         (), "also log the search to tensorboard (in --out/tensorboard) or wandb (offline, in --out/wandb); "
-        "repeat or comma-separate for both. --out/log.csv is always written", action="append", metavar="SINK")
+        "repeat or comma-separate for both. --out/log.csv is always written", changes_results=False,
+        action="append", metavar="SINK")
     optimizer: dict | None = option(None, "a setting of the method changed from its default, e.g. "
                                     "population=40 or sigma_init=0.5 (each method's settings: the "
                                     "concepts page); repeat for several; in a config file, optimizer = "
@@ -399,12 +299,55 @@ class EvaluateConfig(EngineOptions):
 
     def check(self) -> None:
         super().check()
-        if self.seed < 0:
-            raise OptionError(f"seed must be >= 0, got {self.seed}", "seed")
-        check_seeds(self.seeds)
+        check_judged_seeds(self.seed, self.seeds)
         if not 0 <= self.epsilon <= 1 or (self.epsilon and not self.mixture):
             raise OptionError(f"epsilon must be in [0, 1] and comes with mixture, got {self.epsilon}",
                               "epsilon", "mixture")
+
+
+@dataclass(frozen=True)
+class CompareConfig(EngineOptions):
+    """Policy A against policy B (another policy, or the same one with or without a ticket) on the
+    same held-out seeds: a paired A/B test."""
+
+    policy: str | object = option(help="policy A: " + POLICY_HELP)
+    against: str | object = option(help="policy B, run on the same held-out seeds as policy A (a bundled "
+                                   "name, folder or import string, as for policy; the same one to compare "
+                                   "it with and without a ticket)")
+    task: str | Callable | None = option(None, TASK_HELP + " (default: the task the tickets were found on, "
+                                         "else the one the bundled policies were trained on, where they "
+                                         "name one)")
+    ticket: str | Path | None = option(None, "a ticket file or bundled ticket id policy A runs with "
+                                       "(default: none, fresh Gaussian noise)")
+    against_ticket: str | Path | None = option(None, "a ticket file or bundled ticket id policy B runs "
+                                               "with (default: none, fresh Gaussian noise)")
+    seeds: Sequence[int] = option(range(1_000_000, 1_000_200), "held-out seed range A:B, A included, B "
+                                  "not: each seed is one initial state both policies start from",
+                                  seed_range=True)
+    seed: int = option(0, "seed of the Gaussian noise of an arm without a ticket (the same noise for A "
+                       "and B)")
+    max_steps: int | None = option(None, "episode step limit (default: the tickets' own, else the task's)")
+    success: str | Callable | None = option(None, SUCCESS_HELP.replace("(default: ", "(default: the "
+                                                                       "tickets' own, else "))
+    allow_transfer: bool = option(False, "run a ticket found for another policy or task, or under another "
+                                  "max_steps or success", action="store_true")
+
+    def __post_init__(self):
+        for name in ("ticket", "against_ticket"):
+            if isinstance(getattr(self, name), Path):
+                object.__setattr__(self, name, str(getattr(self, name)))
+
+    def check(self) -> None:
+        super().check()
+        check_judged_seeds(self.seed, self.seeds)
+
+
+def check_judged_seeds(seed: int, seeds: Sequence[int]) -> None:
+    """An evaluation's noise seed (>= 0) and its seeds (held-out ones, in the seed sets)."""
+    if seed < 0:
+        raise OptionError(f"seed must be >= 0, got {seed}", "seed")
+    check_seeds(seeds)
+    require_heldout(seeds)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -441,6 +384,21 @@ class TrainConfig:
                 raise OptionError(f"{name} must be >= 0, got {getattr(self, name)}", name)
         if self.kind not in ("flow", "ddim"):
             raise OptionError(f"unknown kind {self.kind!r}; choose from ['flow', 'ddim']", "kind")
+
+
+@dataclass(frozen=True, kw_only=True)
+class CheckConfig(PolicySettings):
+    """A policy and a task looked at before any search (`goldenticket check`): the checks the job runs
+    (`goldenticket.checks`), each printed with what it saw."""
+
+    policy: str | object = option(help=POLICY_HELP)
+    task: str | Callable = option(help=TASK_HELP + " (default: the task a bundled single-task policy was "
+                                  "trained on)")
+    success: str | Callable | None = option(None, SUCCESS_HELP)
+    device: str = option("cpu", "where a LeRobot checkpoint's model runs: cpu, or cuda / cuda:N")
+
+    def check(self) -> None:
+        check_device(self.device)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -543,35 +501,6 @@ def make(cls, values: dict):
         raise OptionError(f"{', '.join(missing)} must be given", *missing)
     check_types(cls, values)
     return cls(**values)
-
-
-@functools.cache
-def field_types(cls) -> dict:
-    """Each field's annotation of `cls`, evaluated (the module postpones them: `f.type` is a string)."""
-    return typing.get_type_hints(cls)
-
-
-def check_types(cls, values: dict) -> None:
-    """OptionError naming the first value that is not of its field's annotated type."""
-    for f in fields(cls):
-        if f.name in values and not conforms(value := values[f.name], field_types(cls)[f.name]):
-            raise OptionError(f"{f.name} must be of type {f.type}, got {value!r} ({type(value).__name__})",
-                              f.name)
-
-
-def conforms(value, hint) -> bool:
-    """Whether `value` is of type `hint`: a bool is no int, an int is a float, a list is a tuple, and a
-    range is a Sequence[int]."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if origin in (UnionType, typing.Union):
-        return any(conforms(value, arg) for arg in args)
-    if origin in (tuple, Sequence):
-        if isinstance(value, range):
-            return origin is Sequence and args[0] is int
-        return isinstance(value, tuple | list) and all(conforms(v, args[0]) for v in value)
-    if hint in (int, float):
-        return isinstance(value, int | hint) and not isinstance(value, bool)
-    return isinstance(value, hint)
 
 
 def read_toml(path: Path) -> dict:

@@ -8,6 +8,7 @@ import importlib
 import multiprocessing as mp
 import os
 import pickle
+import subprocess
 import sys
 import sysconfig
 import traceback
@@ -115,8 +116,13 @@ def spawnable(what: str) -> None:
 
 
 def in_another_process(fn, *args, what: str):
-    """`fn(*args)` in a fresh spawned process, the way worker processes rebuild the user's objects."""
+    """`fn(*args)` in a fresh process, the way worker processes rebuild the user's objects: a new
+    interpreter when nothing sent comes from the main script (a script read from standard input, or
+    one with no `__main__` guard, may call it then), else a spawned process, which re-runs it."""
     picklable(args, what)
+    sent = pickle.dumps((fn, args))
+    if b"__main__" not in sent:
+        return _in_new_interpreter(sent, what)
     spawnable(f"{what}: another process")
     with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
         try:
@@ -125,3 +131,32 @@ def in_another_process(fn, *args, what: str):
             raise UserError(f"{what}: another process could not rebuild it; is its module importable "
                             "there, and does a script that calls goldenticket guard its entry point "
                             "with `if __name__ == '__main__':`?") from None
+
+
+_RUN_SENT = """
+import os, pickle, sys
+answer = os.fdopen(os.dup(1), "wb")
+os.dup2(2, 1)  # what the call prints goes to stderr; stdout carries the answer
+sys.path[:] = pickle.loads(bytes.fromhex(sys.stdin.buffer.readline().decode()))
+fn, args = pickle.loads(sys.stdin.buffer.read())
+try:
+    out = (True, fn(*args))
+except Exception as exc:
+    out = (False, exc)
+answer.write(pickle.dumps(out))
+"""
+
+
+def _in_new_interpreter(sent: bytes, what: str):
+    """Unpickle `sent` = (fn, args) in a new Python interpreter on this one's path, and return what
+    `fn(*args)` returns there (or raise what it raised)."""
+    stdin = pickle.dumps(sys.path).hex().encode() + b"\n" + sent
+    done = subprocess.run([sys.executable, "-c", _RUN_SENT], input=stdin, capture_output=True, check=False)
+    try:
+        ok, value = pickle.loads(done.stdout)
+    except Exception:  # it died, or printed no answer
+        last = (done.stderr.decode(errors="replace").strip().splitlines() or ["no message"])[-1]
+        raise UserError(f"{what}: another process could not rebuild it ({last})") from None
+    if not ok:
+        raise value
+    return value

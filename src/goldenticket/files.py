@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import glob
 import os
 import secrets
+import shutil
 import stat
 from pathlib import Path
 
@@ -36,7 +38,7 @@ def write_atomic(path: str | Path, data: bytes | str) -> Path:
     path = Path(path)
     check_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{secrets.token_hex(4)}.partial")
+    partial = _partial(path)
     try:
         fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as f:
@@ -48,14 +50,44 @@ def write_atomic(path: str | Path, data: bytes | str) -> Path:
         with contextlib.suppress(OSError):
             partial.unlink()
         raise OSError(exc.errno, exc.strerror, str(path)) from None
+    _remove_orphans(path)
     return path
 
 
 def new_folder_beside(path: Path) -> Path:
     """A new, empty, hidden folder beside `path` (umask permissions), to fill and then rename."""
-    folder = path.parent / f".{path.name}.{secrets.token_hex(4)}.partial"
+    _remove_orphans(path)
+    folder = _partial(path)
     folder.mkdir(parents=True)
     return folder
+
+
+def _partial(path: Path) -> Path:
+    """A new hidden name beside `path` for what is being written, with the writer's process id."""
+    return path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.partial")
+
+
+def _remove_orphans(path: Path) -> None:
+    """Remove what a killed process left half-written for `path` (its process is gone); another
+    process's, still writing, stays."""
+    for orphan in path.parent.glob(f".{glob.escape(path.name)}.*-*.partial"):
+        pid = orphan.name[len(path.name) + 2 :].partition("-")[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            with contextlib.suppress(OSError):
+                if orphan.is_dir() and not orphan.is_symlink():
+                    shutil.rmtree(orphan)
+                else:
+                    orphan.unlink()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
 
 
 def open_folder(out: str | Path) -> None:

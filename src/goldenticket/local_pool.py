@@ -4,6 +4,7 @@ one line instead of being replaced (a replaced worker would lose its shard)."""
 
 from __future__ import annotations
 
+import faulthandler
 import itertools
 import multiprocessing as mp
 import multiprocessing.connection
@@ -98,7 +99,9 @@ class LocalPool:
             process.join()
             if worker not in self._ready:
                 raise UserError(f"a worker process could not start ({_ended(process.exitcode)}); its error, "
-                                "if it printed one, is above")
+                                "if it printed one, is above (a worker re-runs the main script: does a "
+                                "script that calls goldenticket guard its entry point with "
+                                "`if __name__ == '__main__':`?)")
             raise WorkerDied(process.exitcode, {i: r for i, (r, e) in finished.items() if e is None})
 
     def terminate(self) -> None:
@@ -124,7 +127,9 @@ def _first_line(exc: BaseException) -> str:
 
 def _serve(conn, payload: bytes) -> None:
     """A worker process: the initializer (sent pickled, so that failing to rebuild it is an answer, not a
-    crash), then `fn(shard)` for each (fn, shard) received. Every answer is (result, error)."""
+    crash), then `fn(shard)` for each (fn, shard) received. Every answer is (result, error). A crash in C
+    code prints the traceback of the call it happened in."""
+    faulthandler.enable()
     try:
         initializer, initargs = pickle.loads(payload)
         initializer(*initargs)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from goldenticket.config import SearchConfig
 from goldenticket.errors import UserError
-from goldenticket.evaluation import ALPHA, Evaluator, Judged, VerdictRow, judge, judge_size
+from goldenticket.evaluation import ALPHA, BASE, ZERO, Arm, Evaluator, Verdict, VerdictRow, judge, judge_size
 from goldenticket.files import write_atomic
 from goldenticket.job import Plan, checked_tasks, find_golden_tickets
 from goldenticket.job.folder import open_store
@@ -23,7 +23,6 @@ from goldenticket.plots import transfer_png
 from goldenticket.policies import find_ticket, load_policy
 from goldenticket.results import Cover, TransferCell, TransferStudy
 from goldenticket.seeds import seeds_in
-from goldenticket.stats import holm_adjust
 from goldenticket.tickets import Ticket, zero_ticket
 
 
@@ -33,7 +32,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
     (transfer.json, transfer.csv), its heatmap (transfer.png) and the greedy cover; every matrix
     episode is kept in `out/run.sqlite`, so a rerun resumes."""
     cfg.check()
-    policy = load_policy(cfg.policy, cfg.device)
+    policy = load_policy(cfg.policy, cfg.device, **cfg.policy_settings())
     tasks = checked_tasks(policy, cfg)
     heldout = seeds_in("heldout", cfg.heldout)
     plan = Plan.of(cfg, policy, tasks)
@@ -51,7 +50,7 @@ def transfer(cfg: SearchConfig, out: Path, ticket_refs: list[str] | None = None)
         found_on = {t.id: [task for task, f in found.items() if f.id == t.id] for t in tickets}
     tickets = list({t.id: t for t in tickets}.values())  # several tasks' searches may find one ticket
     base, zero = Gaussian(cfg.seed), Constant(zero_ticket(policy.noise_shape).noise)
-    sources = {"zero": zero} | {t.id: Constant(t.noise) for t in tickets}
+    sources = {ZERO: zero} | {Arm.ticket(t.id): Constant(t.noise) for t in tickets}
     with Evaluator.open(cfg.policy, tasks, cfg, loaded=policy) as evaluator, \
             open_store(out, plan) as store, \
             evaluator.progress(judge_size(sources, cfg.heldout) * len(tasks), "transfer matrix"):
@@ -71,26 +70,28 @@ def _searched_ticket(cfg: SearchConfig, task: str, out: Path) -> Ticket:
     return find_golden_tickets(single, folder).best.ticket
 
 
-def matrix(per_task: dict[str, dict[str, Judged]], found_on: dict[str, list[str]], policy: str,
+def matrix(per_task: dict[str, Verdict], found_on: dict[str, list[str]], policy: str,
            heldout: list[int]) -> TransferStudy:
     """Each ticket (with the tasks it was found on) on each task: success, gain over base, p vs
-    base Holm-adjusted over the tickets on that task; and the greedy cover."""
+    base Holm-adjusted over the tickets on that task (the task's verdict); and the greedy cover."""
     cells: dict[str, dict[str, TransferCell]] = {}
-    for task, judged in per_task.items():
-        adjusted = holm_adjust([judged[t].p_vs_base for t in found_on])
-        for ticket, p in zip(found_on, adjusted, strict=True):
-            rate, base_rate = judged[ticket].rate.success_rate, judged["base"].rate.success_rate
-            cells.setdefault(ticket, {})[task] = TransferCell(rate, rate - base_rate, p, p < ALPHA)
-    baselines = {task: {arm: judged[arm].row() for arm in ("base", "zero")}
-                 for task, judged in per_task.items()}
+    for task, verdict in per_task.items():
+        base_rate = verdict.rows[BASE].rate.success_rate
+        for ticket in found_on:
+            row = verdict.rows[Arm.ticket(ticket)]
+            cells.setdefault(ticket, {})[task] = TransferCell(row.rate.success_rate,
+                                                              row.rate.success_rate - base_rate,
+                                                              row.p_vs_base, row.p_vs_base < ALPHA)
+    baselines = {task: {arm: verdict.rows[arm] for arm in (BASE, ZERO)} for task, verdict in per_task.items()}
     return TransferStudy(policy, (heldout[0], heldout[-1]), found_on, baselines, cells,
-                         greedy_cover(cells, {task: rows["base"] for task, rows in baselines.items()}))
+                         greedy_cover(cells, {task: rows[BASE] for task, rows in baselines.items()}))
 
 
 def greedy_cover(cells: dict[str, dict[str, TransferCell]], bases: dict[str, VerdictRow]) -> Cover:
     """The smallest set of tickets (greedy set cover) such that every task a ticket significantly
     improves has one that does; every other task gets the ticket with the highest success there if
-    it beats the base's rate (`bases`: each task's base row), else the base."""
+    it beats the base's rate (`bases`: each task's base row), else the base. The table gives each
+    task's arm to run with its cell."""
     wins = {ticket: {task for task, cell in row.items() if cell.significant} for ticket, row in cells.items()}
     uncovered, chosen, table = set().union(*wins.values()), [], {}
     while uncovered:
@@ -98,17 +99,17 @@ def greedy_cover(cells: dict[str, dict[str, TransferCell]], bases: dict[str, Ver
                                           sum(cells[t][task].gain for task in wins[t] & uncovered)))
         chosen.append(ticket)
         for task in sorted(wins[ticket] & uncovered):
-            table[task] = (ticket, cells[ticket][task])
+            table[task] = (Arm.ticket(ticket), cells[ticket][task])
         uncovered -= wins[ticket]
     for task, base in bases.items():
         if task in table:
             continue
         best = max(cells, key=lambda t: cells[t][task].success_rate)
         if cells[best][task].gain > 0:
-            table[task] = (best, cells[best][task])
+            table[task] = (Arm.ticket(best), cells[best][task])
         else:
-            table[task] = ("base", TransferCell(base.rate.success_rate, 0.0, None, False))
-    uses = {use for use, _ in table.values()} - {"base"}
+            table[task] = (BASE, TransferCell(base.rate.success_rate, 0.0, None, False))
+    uses = {use.key for use, _ in table.values() if use.candidate}
     return Cover(tuple(chosen), tuple(sorted(uses - set(chosen))), {task: table[task] for task in bases})
 
 
@@ -117,7 +118,7 @@ def transfer_csv(study: TransferStudy) -> str:
     lines = ["ticket,found_on,task,success_rate,base_rate,gain,p_vs_base,significant"]
     for ticket, found_on in study.tickets.items():
         for task, cell in study.cells[ticket].items():
-            base = study.baselines[task]["base"].rate.success_rate
+            base = study.baselines[task][BASE].rate.success_rate
             lines.append(f"{ticket},{'+'.join(found_on)},{task},{cell.success_rate:.4f},{base:.4f},{cell.gain:.4f},"
                          f"{cell.p_vs_base:.4g},{cell.significant}")
     return "\n".join(lines) + "\n"

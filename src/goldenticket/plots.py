@@ -7,24 +7,25 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
+from matplotlib import colormaps
 from matplotlib.container import ErrorbarContainer
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from matplotlib.ticker import PercentFormatter
-from matplotlib.transforms import blended_transform_factory
 
-from goldenticket.evaluation import ZERO_MARK
+from goldenticket.evaluation import BASE, ZERO
 from goldenticket.files import write_atomic
 from goldenticket.report import gain_text, short_task
 from goldenticket.stats import Rate
 
 if TYPE_CHECKING:
     from goldenticket.evaluation import MultitaskVerdict
-    from goldenticket.results import ParetoFront, TransferStudy
+    from goldenticket.results import Comparison, ParetoFront, TransferStudy
 
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 ARMS = {"base": "base (Gaussian noise)", "zero ticket": "zero ticket", "golden": "golden ticket",
         "ticket": "ticket, not golden"}
+GREENS = colormaps["Greens"]  # search scores: darker, more search seeds run
 LABEL_BOX = {"boxstyle": "square,pad=0.1", "facecolor": "white", "edgecolor": "none"}  # over the base line
 
 
@@ -39,28 +40,52 @@ def arms_png(rows: dict[str, Arm], path: Path, title: str, what: str = "held-out
              unit: str = "seeds", best: str | None = None) -> Path:
     """One row per arm (base, zero ticket, tickets): held-out success with its 95% Wilson
     interval on an axis from 0% to 100%; golden tickets in gold, the base rate as a dashed line,
-    the row labelled `best` (the chosen ticket) starred and in bold. The zero ticket judged as a
-    ticket (its label ends in ZERO_MARK) is drawn once, as that ticket, in the zero ticket's colour."""
-    rows = _zero_once(rows)
+    the row labelled `best` (the chosen ticket) starred and in bold."""
     fig = Figure(figsize=(8.5, 1.4 + 0.45 * len(rows)))
     ax = fig.subplots()
+    _arms(ax, rows, best, f"{what}, 95% Wilson interval (n = {rows['base'].rate.n} {unit})")
+    ax.set_title(title)
+    _legend(ax)
+    return _save(fig, path)
+
+
+def _arms(ax, rows: dict[str, Arm], best: str | None, xlabel: str) -> None:
+    """`arms_png`'s rows drawn on `ax`."""
     for y, (label, r) in enumerate(rows.items()):
-        rate = r.rate.success_rate
-        ax.errorbar(rate, y, xerr=[[rate - r.rate.ci_low], [r.rate.ci_high - rate]], fmt="o", capsize=4,
-                    color=COLORS[_kind(label, r)], label=ARMS[_kind(label, r)])
-        ax.annotate(f"{rate:.1%}", (rate, y), xytext=(0, 6), textcoords="offset points", fontsize="small",
-                    ha="left" if rate < 0.1 else "right" if rate > 0.9 else "center", bbox=LABEL_BOX)
+        _rate_point(ax, r.rate, y, COLORS[_kind(label, r)], ARMS[_kind(label, r)])
     ax.axvline(rows["base"].rate.success_rate, color=COLORS["base"], linestyle="--", linewidth=1,
                label="base rate")
     ax.set_yticks(range(len(rows)), list(rows))
     if best in rows:
         _star(ax, rows[best].rate.success_rate, list(rows).index(best), "chosen ticket")
         ax.get_yticklabels()[list(rows).index(best)].set_fontweight("bold")
-    n = rows["base"].rate.n  # the limits leave room for a marker at 0% or 100% and the first row's rate
-    ax.set(xlim=(-0.04, 1.04), ylim=(len(rows) - 0.5, -0.7), xticks=[i / 5 for i in range(6)],
-           title=title, xlabel=f"{what}, 95% Wilson interval (n = {n} {unit})")
+    # the limits leave room for a marker at 0% or 100% and the first row's rate
+    ax.set(xlim=(-0.04, 1.04), ylim=(len(rows) - 0.5, -0.7), xticks=[i / 5 for i in range(6)], xlabel=xlabel)
     _success_axis(ax)
-    _legend(ax)
+
+
+def _rate_point(ax, rate: Rate, y: float, color: str, label: str | None = None) -> None:
+    """A success rate at height `y`: its point, its 95% Wilson interval and its value above it."""
+    x = rate.success_rate
+    ax.errorbar(x, y, xerr=[[x - rate.ci_low], [rate.ci_high - x]], fmt="o", capsize=4, color=color,
+                label=label)
+    ax.annotate(f"{x:.1%}", (x, y), xytext=(0, 6), textcoords="offset points", fontsize="small",
+                ha="left" if x < 0.1 else "right" if x > 0.9 else "center", bbox=LABEL_BOX)
+
+
+def comparison_png(comparison: Comparison, path: Path, title: str) -> Path:
+    """Arms A and B: success on the same seeds with 95% Wilson intervals, the better one (two-sided
+    exact paired test, p < 0.05) in gold, the test's p-values under the axis."""
+    c = comparison
+    fig = Figure(figsize=(8.5, 2.3))
+    ax = fig.subplots()
+    for y, (side, arm) in enumerate((("A", c.a), ("B", c.b))):
+        _rate_point(ax, arm.rate, y, COLORS["golden" if c.better == side else "base"])
+    ax.set_yticks([0, 1], [f"A: {c.a.label}", f"B: {c.b.label}"])
+    ax.set(xlim=(-0.04, 1.04), ylim=(1.5, -0.7), xticks=[i / 5 for i in range(6)], title=title,
+           xlabel=f"success, 95% Wilson interval, on {c.a.rate.n} paired seeds; exact paired test: p A > B "
+                  f"{c.p_a_better:.3g}, p B > A {c.p_b_better:.3g}, two-sided {c.p_two_sided:.3g}")
+    _success_axis(ax)
     return _save(fig, path)
 
 
@@ -73,67 +98,48 @@ def _success_axis(ax) -> None:
     ax.xaxis.set_major_formatter(PercentFormatter(1.0))
 
 
-def _zero_once(rows: dict[str, Arm]) -> dict[str, Arm]:
-    """`rows` without the zero-ticket arm where the zero ticket is also judged as a ticket."""
-    judged = any(label.endswith(ZERO_MARK) for label in rows)
-    return {label: r for label, r in rows.items() if not (judged and label == "zero ticket")}
-
-
 def _kind(label: str, row: Arm) -> str:
     """The arm's colour and legend entry: base, zero ticket, golden or ticket."""
     if label in COLORS:
         return label
-    if row.golden:
-        return "golden"
-    return "zero ticket" if label.endswith(ZERO_MARK) else "ticket"
+    return "golden" if row.golden else "ticket"
 
 
 def search_png(scores: list[float], episodes: list[int], path: Path, title: str, *,
                validated: Sequence[int] = (), judged: Sequence[int] = (), chosen: int | None = None,
-               base: tuple[float, str] | None = None) -> Path:
-    """Each ticket's search score (mean objective on the search seeds) in the order the search
-    first tried it, hollow if it ran fewer episodes than the most, and the best so far among
-    those with the most. Rings mark the tickets (indices) `validated` and `judged` on held-out
-    seeds, a star the `chosen` one (the delivered ticket, if the search found it); `base` is (score,
-    where it was measured), drawn at the right margin."""
-    fig = Figure(figsize=(9, 4.2))
-    ax = fig.subplots()
-    full = max(episodes, default=0)
-    order = range(1, len(scores) + 1)
-    for n_full, face, label in ((True, "tab:green", f"ticket, {full} episodes"),
-                                (False, "none", "ticket, fewer episodes")):
-        shown = [i for i, n in enumerate(episodes) if (n == full) == n_full]
-        if shown:
-            ax.scatter([order[i] for i in shown], [scores[i] for i in shown], s=16, alpha=0.6,
-                       facecolors=face, edgecolors="tab:green", label=label)
-    ax.step(order, _best_so_far(scores, episodes, full), where="post", color="goldenrod",
-            label=f"best so far ({full} episodes)")
-    if base is not None:  # at the right margin: measured on other seeds than the search's
-        ax.plot([1.0], [base[0]], transform=blended_transform_factory(ax.transAxes, ax.transData),
-                marker="<", markersize=10, linestyle="none", color=COLORS["base"], clip_on=False, zorder=4,
-                label=f"base policy on {base[1]}")
+               heldout: tuple[dict[str, Arm], str, str] | None = None) -> Path:
+    """What the search did: each ticket's search score (mean objective over the search seeds it ran)
+    in the order tried, darker the more search seeds it ran (sequential halving cuts the others);
+    rings mark the tickets (indices) `validated` and `judged` on held-out seeds, a star the `chosen`
+    one. `heldout` (rows by label, the chosen row's label, the seeds' name) adds a panel of those
+    rows' held-out success, the base's among them, on the seeds that decided."""
+    fig = Figure(figsize=(14, 5) if heldout else (9, 5), layout="constrained")
+    ax, *side = fig.subplots(1, 2, width_ratios=(3, 2)) if heldout else [fig.subplots()]
+    full, order = max(episodes, default=0), range(1, len(scores) + 1)
+    counts = sorted(set(episodes))
+    for level, n in enumerate(counts):
+        shown = [i for i, ran in enumerate(episodes) if ran == n]
+        cut = "every search seed" if n == full else "then cut by halving"
+        shade = GREENS(0.35 + 0.65 * level / max(1, len(counts) - 1))
+        ax.scatter([order[i] for i in shown], [scores[i] for i in shown], s=18, color=shade,
+                   label=f"ran {n} episodes, {cut}")
     for marked, size, color, label in ((validated, 90, "black", "sent to validation"),
                                        (judged, 200, "tab:purple", "judged on held-out seeds")):
         if marked:
             ax.scatter([order[i] for i in marked], [scores[i] for i in marked], s=size, facecolors="none",
                        edgecolors=color, linewidths=1.2, label=label)
     if chosen is not None:
-        how = "chosen on validation seeds,\nthen" if validated else "the"
-        _star(ax, order[chosen], scores[chosen], f"delivered ({how} best held-out success)")
-    ax.set_title(title, loc="left")  # a long title runs on over the legend, not off the left edge
-    ax.set(xlabel="tickets, in the order tried", ylabel="search score (mean objective)",
+        _star(ax, order[chosen], scores[chosen], "delivered: the best on held-out seeds" if judged else
+              "delivered")
+    ax.set_title(title, loc="left")
+    ax.set(xlabel="tickets, in the order the search tried them", ylabel="search score (mean objective)",
            ylim=(min(0, *scores) - 0.05, max(1, *scores) + 0.05))
-    _legend(ax)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), ncols=3, fontsize="small")
+    if heldout:
+        rows, best, seeds = heldout
+        _arms(side[0], rows, best, "success, 95% Wilson interval")
+        side[0].set_title(f"judged on {seeds}", loc="left")
     return _save(fig, path)
-
-
-def _best_so_far(scores: list[float], episodes: list[int], full: int) -> list[float]:
-    """The running best score among tickets that ran `full` episodes (NaN before the first)."""
-    best, running = [], float("-inf")
-    for score, n in zip(scores, episodes, strict=True):
-        running = max(running, score) if n == full else running
-        best.append(running if running > float("-inf") else float("nan"))
-    return best
 
 
 def _star(ax, x: float, y: float, label: str) -> None:
@@ -158,11 +164,10 @@ def front_png(study: ParetoFront, path: Path) -> Path:
     for _, scores, front in study.search:
         search.scatter(scores[x_name], scores[y_name], s=40 if front else 14,
                        color=COLORS["golden"] if front else "0.6", zorder=3 if front else 2)
-    for label, arm in study.heldout.items():
-        kind = label if label in ("base", "zero") else "front"
-        color = {"base": COLORS["base"], "zero": COLORS["zero ticket"], "front": COLORS["golden"]}[kind]
-        heldout.scatter(arm.scores[x_name], arm.scores[y_name], color=color, s=40, zorder=3)
-        heldout.annotate(label, (arm.scores[x_name], arm.scores[y_name]), xytext=(4, 4),
+    for arm, front in study.heldout.items():
+        color = {BASE: COLORS["base"], ZERO: COLORS["zero ticket"]}.get(arm, COLORS["golden"])
+        heldout.scatter(front.scores[x_name], front.scores[y_name], color=color, s=40, zorder=3)
+        heldout.annotate(arm.key, (front.scores[x_name], front.scores[y_name]), xytext=(4, 4),
                          textcoords="offset points", fontsize="x-small")
     seeds = study.heldout_seeds
     search.set(title="search seeds: every ticket (front in gold)", xlabel=x_name, ylabel=y_name)
@@ -179,8 +184,8 @@ def tasks_png(verdict: MultitaskVerdict, path: Path, title: str) -> Path:
     rows["average"] = verdict.average
     fig = Figure(figsize=(8, 1.2 + 0.75 * len(rows)))
     ax = fig.subplots()
-    arms = (("base", "base", COLORS["base"]), ("zero", "zero ticket", COLORS["zero ticket"]),
-            (ticket, f"ticket {ticket}", COLORS["golden"]))
+    arms = ((BASE, BASE.label, COLORS["base"]), (ZERO, ZERO.label, COLORS["zero ticket"]),
+            (ticket, ticket.label, COLORS["golden"]))
     for y, arms_of_task in enumerate(rows.values()):
         for offset, (label, legend, color) in zip((-0.22, 0, 0.22), arms, strict=True):
             r = arms_of_task[label].rate
@@ -214,7 +219,7 @@ def transfer_png(study: TransferStudy, path: Path) -> Path:
             cell = study.cells[ticket][task]
             ax.text(j, i, gain_text(cell.gain, cell.significant), ha="center", va="center", fontsize="small",
                     color="white" if abs(cell.gain) > limit / 2 else "black")
-            if study.cover.table[task][0] == ticket:
+            if study.cover.table[task][0].key == ticket:
                 ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, linewidth=2, color="goldenrod"))
     ax.set_xticks(range(len(tasks)), [short_task(t) for t in tasks], rotation=40, ha="right")
     ax.set_yticks(range(len(tickets)), [f"{t} ({', '.join(map(short_task, study.tickets[t]))})"
@@ -226,7 +231,8 @@ def transfer_png(study: TransferStudy, path: Path) -> Path:
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    fig.tight_layout()
+    if fig.get_layout_engine() is None:  # a constrained layout lays itself out
+        fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     return write_atomic(path, buffer.getvalue())

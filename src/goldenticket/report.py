@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from goldenticket.evaluation import ZERO_MARK
-from goldenticket.results import to_run
+from goldenticket.evaluation import ALPHA, BASE, ZERO
+from goldenticket.results import PAIRED_TEST, to_run
 
 if TYPE_CHECKING:
     from goldenticket.evaluation import VerdictRow
-    from goldenticket.results import MultitaskSummary, TransferStudy
+    from goldenticket.results import Comparison, MultitaskSummary, TransferStudy, VerdictTable
 
 
 def p_vs_base(row: dict) -> float | None:
@@ -37,32 +37,38 @@ def verdict_table(rows: dict[str, dict], title: str = "noise") -> str:
     return "\n".join(lines)
 
 
-def verdict_text(rows: dict[str, VerdictRow], best: VerdictRow, name: str, note: str) -> str:
-    """The verdict table (rows from `results.arm_rows`), a one-line plain verdict on the best
-    ticket (`best`, called `name`) saying what to run (`results.to_run`), and how to read the
-    p-values (and the non-finite column, when shown)."""
-    base = rows["base"].rate.success_rate
+def verdict_text(table: VerdictTable, best: VerdictRow, name: str, note: str) -> str:
+    """The verdict table, each arm once (under it, where the zero ticket was judged as one of the
+    tickets, which one it was and what Holm's adjustment made of its p vs base), a one-line plain
+    verdict on the best ticket (`best`, called `name`) saying what to run (`results.to_run`), and
+    how to read the p-values (and the non-finite column, when shown)."""
+    base = table.base.rate.success_rate
     if best.golden:
         line = (f"Golden ticket {name}: {best.rate.success_rate:.1%} vs base {base:.1%} on "
                 f"{best.rate.n} held-out seeds (p = {best.p_vs_base:.3g})")
     else:
         line = (f"No golden ticket: the best ticket ({name}, {best.rate.success_rate:.1%}) is not "
                 f"significantly better than the base ({base:.1%}); p = {best.p_vs_base:.3g} >= 0.05. "
-                + instead(rows, best))
+                + instead(table, best))
+    rows = table.rows()
     if any(r.nonfinite for r in rows.values()):
         note += (" non-finite: episodes the policy ended with a NaN or infinite action, counted as "
                  "failures.")
-    table = verdict_table({label: r.to_dict() for label, r in rows.items()})
-    return f"{table}\n\n{line}\n{note}"
+    shown = verdict_table({label: r.to_dict() for label, r in rows.items()})
+    if table.zero_judged_as is not None:
+        shown += (f"\n{ZERO.label} = ticket {table.zero_judged_as}, judged as one of the "
+                  f"{table.adjusted_over} tickets: its p vs base is Holm-adjusted over them "
+                  f"({table.zero_unadjusted:.3g} unadjusted)")
+    return f"{shown}\n\n{line}\n{note}"
 
 
-def instead(rows: dict[str, VerdictRow], best: VerdictRow) -> str:
+def instead(table: VerdictTable, best: VerdictRow) -> str:
     """What to run when the best ticket (`best`) is not golden (`results.to_run`): the zero ticket
-    where it is golden and was not judged among the tickets (there its p-value is adjusted like
-    theirs), an arm ahead of the base though not proven better, or the base."""
-    zero, unsure = rows["zero ticket"], " though not proven better (more held-out seeds would tell)."
-    run = to_run(best.rate.success_rate, zero.rate.success_rate, rows["base"].rate.success_rate, best.golden)
-    if run == "zero" and zero.golden and not any(label.endswith(ZERO_MARK) for label in rows):
+    where it is golden (never where it was judged as one of the tickets: then the best is at least
+    as good), an arm ahead of the base though not proven better, or the base."""
+    zero, unsure = table.zero, " though not proven better (more held-out seeds would tell)."
+    run = to_run(best.rate.success_rate, zero.rate.success_rate, table.base.rate.success_rate, best.golden)
+    if run == "zero" and zero.golden:
         return (f"The zero ticket (w = 0) is: {zero.rate.success_rate:.1%}, p = {zero.p_vs_base:.3g}; "
                 "deploy it (a ticket of zeros) rather than these tickets.")
     if run == "zero":
@@ -137,21 +143,21 @@ def multitask_text(summary: MultitaskSummary) -> str:
     for task, arms in [*verdict.tasks.items(), ("average", average)]:
         t = arms[shown]
         flag = "REGRESSES" if task in verdict.regressions[shown] else ""
-        rows.append((short_task(task), row_text(arms["base"], 6), row_text(arms["zero"], 6),
+        rows.append((short_task(task), row_text(arms[BASE], 6), row_text(arms[ZERO], 6),
                      row_text(t, 6), f"{t.p_vs_base:.3g}", f"{t.p_vs_zero:.3g}", flag))
-    table = _columns(("task", "base", "zero ticket", f"ticket {shown}", "p vs base", "p vs zero", ""), rows)
+    table = _columns(("task", BASE.label, ZERO.label, shown.label, "p vs base", "p vs zero", ""), rows)
     lines = [table, ""]
     if best is None:
         lines.append("No ticket qualifies: with --no-regression, every ticket is significantly worse than "
                      "the base on some task.")
     else:
         said = "golden on average" if average[best].golden else "not significantly better on average"
-        lines.append(f"Best ticket {best}: {average[best].rate.success_rate:.1%} averaged over "
-                     f"{len(verdict.tasks)} tasks vs base {average['base'].rate.success_rate:.1%} "
+        lines.append(f"Best ticket {best.key}: {average[best].rate.success_rate:.1%} averaged over "
+                     f"{len(verdict.tasks)} tasks vs base {average[BASE].rate.success_rate:.1%} "
                      f"(p = {average[best].p_vs_base:.3g}, {said}).")
     for ticket in verdict.tickets:
         worse = ", ".join(short_task(t) for t in verdict.regressions[ticket]) or "none"
-        lines.append(f"  ticket {ticket}: average {average[ticket].rate.success_rate:.1%}; "
+        lines.append(f"  {ticket.label}: average {average[ticket].rate.success_rate:.1%}; "
                      f"significantly worse than base on: {worse}")
     return "\n".join(lines + [summary.p_value_note + " Regression: one-sided exact paired test, base "
                               "better than the ticket on that task, p < 0.05 (not adjusted)."])
@@ -170,8 +176,8 @@ def transfer_text(study: TransferStudy) -> str:
              *[gain_text(study.cells[ticket][t].gain, study.cells[ticket][t].significant) for t in tasks])
             for ticket, found in study.tickets.items()]
     cover = study.cover
-    switching = [(short_task(task), use, f"{cell.success_rate:.1%}",
-                  f"{study.baselines[task]['base'].rate.success_rate:.1%}",
+    switching = [(short_task(task), use.key, f"{cell.success_rate:.1%}",
+                  f"{study.baselines[task][BASE].rate.success_rate:.1%}",
                   "significant" if cell.significant else "")
                  for task, (use, cell) in cover.table.items()]
     covered = sum(cell.significant for _, cell in cover.table.values())
@@ -183,3 +189,35 @@ def transfer_text(study: TransferStudy) -> str:
         "the ticket with its best success if that beats the base "
         f"({', '.join(cover.fallbacks) or 'none'}), else the base. The switching table:",
         _columns(("task", "use", "success", "base", ""), switching)])
+
+
+def comparison_text(comparison: Comparison) -> str:
+    """Arms A and B, a line each (policy, ticket, success with its 95% Wilson interval, n; the
+    episodes a NaN or infinite action ended, where any did), the discordant seeds, the paired tests
+    both ways and two-sided, a one-line verdict, and what the test is."""
+    c, arms = comparison, {"A": comparison.a, "B": comparison.b}
+    nonfinite = any(arm.nonfinite for arm in arms.values())
+    header = ("arm", "policy", "ticket", "success", "95% Wilson CI", "n") + ("non-finite",) * nonfinite
+    rows = [(side, arm.policy, arm.ticket or "-", f"{arm.rate.success_rate:.1%}",
+             f"[{arm.rate.ci_low:.1%}, {arm.rate.ci_high:.1%}]", str(arm.rate.n))
+            + (str(arm.nonfinite),) * nonfinite for side, arm in arms.items()]
+    lines = [_columns(header, rows), "",
+             f"discordant seeds: {c.a_only + c.b_only} of {c.a.rate.n} (A succeeded where B failed on "
+             f"{c.a_only}, B where A failed on {c.b_only})",
+             f"p A > B = {c.p_a_better:.3g}, p B > A = {c.p_b_better:.3g}, two-sided p = {c.p_two_sided:.3g}",
+             "", comparison_verdict(c),
+             f"Test: {PAIRED_TEST} (seeds {c.seeds[0]}:{c.seeds[1] + 1}, task {c.task})."]
+    if nonfinite:
+        lines.append("non-finite: episodes the policy ended with a NaN or infinite action, counted as "
+                     "failures.")
+    return "\n".join(lines)
+
+
+def comparison_verdict(c: Comparison) -> str:
+    """One line: which arm is better on these seeds (the two-sided test), or no significant difference."""
+    rates = f"{c.a.rate.success_rate:.1%} vs {c.b.rate.success_rate:.1%} on {c.a.rate.n} held-out seeds"
+    if c.better is None:
+        return (f"No significant difference between A and B on these seeds: {rates} (two-sided p = "
+                f"{c.p_two_sided:.3g} >= {ALPHA}).")
+    worse = "B" if c.better == "A" else "A"
+    return f"{c.better} is better than {worse} on these seeds: {rates} (two-sided p = {c.p_two_sided:.3g})."

@@ -3,16 +3,45 @@ a file or the public API is written (`to_dict`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
-from goldenticket.evaluation import ZERO_MARK, MultitaskVerdict, VerdictRow, p_value_note, to_dicts
+from goldenticket.evaluation import (
+    ALPHA,
+    BASE,
+    ZERO,
+    Arm,
+    Judged,
+    MultitaskVerdict,
+    VerdictRow,
+    p_value_note,
+    to_dicts,
+)
+from goldenticket.stats import Rate, paired_exact_test
 from goldenticket.tickets import ZERO_SOURCE, Ticket
 
 
-def arm_rows(base: VerdictRow, zero: VerdictRow, tickets: dict[str, VerdictRow]) -> dict[str, VerdictRow]:
-    """Verdict rows as people read them: base, zero ticket, then each ticket (`tickets` by id, or by
-    `FoundTicket.label`)."""
-    return {"base": base, "zero ticket": zero} | {f"ticket {t}": row for t, row in tickets.items()}
+@dataclass(frozen=True)
+class VerdictTable:
+    """A verdict as people read it, each arm once: the base, the zero ticket, then the candidates by
+    label (tickets, best first; a mixture). Where the zero ticket was judged as one of the tickets
+    (`zero_judged_as`: its id), its row is that ticket's, its p vs base Holm-adjusted over the tickets
+    like theirs (`zero_unadjusted`: before the adjustment)."""
+
+    base: VerdictRow
+    zero: VerdictRow
+    candidates: dict[str, VerdictRow]
+    zero_judged_as: str | None = None
+    zero_unadjusted: float | None = None
+
+    def rows(self) -> dict[str, VerdictRow]:
+        """Every row by label, in table order."""
+        return {BASE.label: self.base, ZERO.label: self.zero} | self.candidates
+
+    @property
+    def adjusted_over(self) -> int:
+        """The number of candidates the p-values are Holm-adjusted over."""
+        return len(self.candidates) + (self.zero_judged_as is not None)
 
 
 def to_run(best: float, zero: float, base: float, golden: bool) -> str:
@@ -47,12 +76,17 @@ class FoundTicket:
     @property
     def name(self) -> str:
         """The id, and what it is when it is the zero ticket."""
-        return self.id + (" (the zero ticket, w = 0)" if self.source == ZERO_SOURCE else "")
+        return self.id + (" (the zero ticket, w = 0)" if self.is_zero else "")
+
+    @property
+    def is_zero(self) -> bool:
+        """Whether it is the zero ticket."""
+        return self.source == ZERO_SOURCE
 
     @property
     def label(self) -> str:
-        """Its row's label in the verdict table (`arm_rows`)."""
-        return self.id + (ZERO_MARK if self.source == ZERO_SOURCE else "")
+        """Its row's label in the verdict table (`Summary.table`)."""
+        return ZERO.label if self.is_zero else Arm.ticket(self.id).label
 
     def to_dict(self) -> dict:
         validation = {k: v for k, v in (("validation_score", self.validation_score), ("source", self.source))
@@ -102,17 +136,18 @@ class ParetoFront:
     objectives: tuple[str, str]
     heldout_seeds: tuple[int, int]
     search: tuple[tuple[str, dict[str, float], bool], ...]
-    heldout: dict[str, FrontArm]
+    heldout: dict[Arm, FrontArm]
 
     @property
     def tickets(self) -> tuple[str, ...]:
-        return tuple(label for label in self.heldout if label not in ("base", "zero"))
+        return tuple(arm.key for arm in self.heldout if arm.candidate)
 
     def to_dict(self) -> dict:
         """front.json."""
         search = [{"ticket_id": t, "scores": scores, "front": front} for t, scores, front in self.search]
         return {"objectives": list(self.objectives), "heldout_seeds": list(self.heldout_seeds),
-                "search": search, "heldout": {label: arm.to_dict() for label, arm in self.heldout.items()}}
+                "search": search,
+                "heldout": {arm.key: front.to_dict() for arm, front in self.heldout.items()}}
 
 
 @dataclass(frozen=True)
@@ -138,15 +173,21 @@ class Summary:
         best = self.best.heldout
         rates = (best.rate.success_rate, self.zero.rate.success_rate, self.base.rate.success_rate)
         run = to_run(*rates, best.golden)
-        return DELIVERED["zero" if run == "best" and self.best.source == ZERO_SOURCE else run]
+        return DELIVERED["zero" if run == "best" and self.best.is_zero else run]
 
     @property
     def p_value_note(self) -> str:
         return p_value_note(len(self.tickets))
 
-    def rows(self) -> dict[str, VerdictRow]:
-        """The verdict rows as people read them (`arm_rows`)."""
-        return arm_rows(self.base, self.zero, {t.label: t.heldout for t in self.tickets})
+    def table(self) -> VerdictTable:
+        """The verdict as people read it: the zero ticket once, as the ticket it was judged as where it was
+        one of them."""
+        candidates = {t.label: t.heldout for t in self.tickets if not t.is_zero}
+        judged = next((t for t in self.tickets if t.is_zero), None)
+        if judged is None:
+            return VerdictTable(self.base, self.zero, candidates)
+        zero = replace(judged.heldout, p_vs_zero=None)  # against itself
+        return VerdictTable(self.base, zero, candidates, judged.id, self.zero.p_vs_base)
 
     def to_dict(self) -> dict:
         """summary.json."""
@@ -175,15 +216,16 @@ class TransferCell:
 @dataclass(frozen=True)
 class Cover:
     """The greedy cover: its tickets, the other tickets the switching table uses, and per task the
-    ticket to run ("base": none) with its cell."""
+    arm to run (a ticket, or the base where none beats it) with its cell."""
 
     tickets: tuple[str, ...]
     fallbacks: tuple[str, ...]
-    table: dict[str, tuple[str, TransferCell]]
+    table: dict[str, tuple[Arm, TransferCell]]
 
     def to_dict(self) -> dict:
         return {"tickets": list(self.tickets), "fallbacks": list(self.fallbacks),
-                "table": {task: {"use": use} | cell.to_dict() for task, (use, cell) in self.table.items()}}
+                "table": {task: {"use": use.key} | cell.to_dict()
+                          for task, (use, cell) in self.table.items()}}
 
 
 @dataclass(frozen=True)
@@ -194,7 +236,7 @@ class TransferStudy:
     policy: str
     heldout_seeds: tuple[int, int]
     tickets: dict[str, list[str]]
-    baselines: dict[str, dict[str, VerdictRow]]  # task -> "base" and "zero" rows
+    baselines: dict[str, dict[Arm, VerdictRow]]  # task -> the base's and the zero ticket's rows
     cells: dict[str, dict[str, TransferCell]]  # ticket -> task -> cell
     cover: Cover
 
@@ -228,3 +270,94 @@ class MultitaskSummary:
         """summary.json."""
         scores = {"validation_scores": self.validation} if self.validation else {}
         return self.verdict.to_dict() | self.run.to_dict() | scores | {"p_value_note": self.p_value_note}
+
+
+PAIRED_TEST = ("exact McNemar (sign) test on the paired seeds: only the discordant seeds (one arm succeeded, "
+               "the other failed) count; p A > B and p B > A are its one-sided p-values, the two-sided p is "
+               f"the smaller one doubled (at most 1), and a difference is called where it is below {ALPHA}")
+
+
+@dataclass(frozen=True)
+class ComparedArm:
+    """One arm of a comparison: its policy's name, its ticket's id (None: fresh Gaussian noise), its
+    arm (the run store's label of its episodes: `Arm.key`) and its episodes on the seeds, in seed order."""
+
+    policy: str
+    ticket: str | None
+    arm: Arm
+    judged: Judged = field(repr=False)
+
+    @property
+    def rate(self) -> Rate:
+        """Its success rate with the 95% Wilson interval."""
+        return self.judged.rate
+
+    @property
+    def successes(self) -> tuple[bool, ...]:
+        """Each seed's success, in seed order."""
+        return tuple(self.judged.successes)
+
+    @property
+    def nonfinite(self) -> int:
+        """Episodes ended as failures by a NaN or infinite action."""
+        return self.judged.nonfinite
+
+    @property
+    def label(self) -> str:
+        """The policy, and its ticket where it runs one."""
+        return self.policy + ("" if self.ticket is None else f" + ticket {self.ticket}")
+
+    def to_dict(self) -> dict:
+        return ({"policy": self.policy, "ticket": self.ticket, "arm": self.arm.key} | self.rate.to_dict()
+                | {"nonfinite_episodes": self.nonfinite})
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Arms A and B on the same held-out seeds of `task` (`seeds`: the first and the last), paired seed
+    by seed: each arm's success, the discordant seeds and the exact paired tests between them
+    (`PAIRED_TEST`), computed from the seeds' successes."""
+
+    task: str
+    seeds: tuple[int, int]
+    a: ComparedArm
+    b: ComparedArm
+
+    @property
+    def a_only(self) -> int:
+        """Seeds where A succeeded and B failed."""
+        return sum(a and not b for a, b in zip(self.a.successes, self.b.successes, strict=True))
+
+    @property
+    def b_only(self) -> int:
+        """Seeds where B succeeded and A failed."""
+        return sum(b and not a for a, b in zip(self.a.successes, self.b.successes, strict=True))
+
+    @cached_property
+    def p_a_better(self) -> float:
+        """One-sided exact paired p-value of A succeeding more often than B."""
+        return paired_exact_test(self.a.successes, self.b.successes)
+
+    @cached_property
+    def p_b_better(self) -> float:
+        """One-sided exact paired p-value of B succeeding more often than A."""
+        return paired_exact_test(self.b.successes, self.a.successes)
+
+    @property
+    def p_two_sided(self) -> float:
+        """The two-sided exact paired p-value: the smaller one-sided one doubled, at most 1."""
+        return min(1.0, 2 * min(self.p_a_better, self.p_b_better))
+
+    @property
+    def better(self) -> str | None:
+        """"A" or "B", the arm the two-sided test finds better (p < ALPHA), else None."""
+        if self.p_two_sided >= ALPHA:
+            return None
+        return "A" if self.p_a_better < self.p_b_better else "B"
+
+    def to_dict(self) -> dict:
+        """What `compare --json` prints."""
+        return {"task": self.task, "seeds": list(self.seeds), "a": self.a.to_dict(), "b": self.b.to_dict(),
+                "discordant": {"a_only": self.a_only, "b_only": self.b_only},
+                "p_a_better": self.p_a_better, "p_b_better": self.p_b_better,
+                "p_two_sided": self.p_two_sided, "better": self.better, "alpha": ALPHA, "test": PAIRED_TEST}

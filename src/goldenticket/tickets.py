@@ -124,7 +124,9 @@ class TicketRecord:
 
 
 def _string(value) -> str | None:
-    return None if isinstance(value, str) else f"must be a string, got {type(value).__name__}"
+    if not isinstance(value, str):
+        return f"must be a string, got {type(value).__name__}"
+    return None if value.isprintable() else "must be printable text (no control characters)"
 
 
 def _count(value) -> str | None:
@@ -146,8 +148,9 @@ def _shape(value) -> str | None:
 
 
 def _tasks(value) -> str | None:
-    good = isinstance(value, list) and value and all(isinstance(t, str) for t in value)
-    return None if good else "must be a list of task names"
+    if not (isinstance(value, list) and value and all(isinstance(t, str) for t in value)):
+        return "must be a list of task names"
+    return None if all(t.isprintable() for t in value) else "must be printable text (no control characters)"
 
 
 def _steps(value) -> str | None:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.config import SearchConfig, to_toml
-from goldenticket.evaluation import to_dicts
+from goldenticket.evaluation import BASE, ZERO, to_dicts
 from goldenticket.files import check_target
 from goldenticket.plots import search_png
 from goldenticket.results import MultitaskSummary, Summary
@@ -48,11 +48,14 @@ COLUMNS = tuple(Row.__dataclass_fields__)
 
 
 class CsvSink:
-    """log.csv: one row per number, flushed as written, so `tail -f` follows a search."""
+    """log.csv: one row per number, flushed as written, so `tail -f` follows a search. Always a new
+    file (a rerun replays the run from its store: a new log), never one written through a hard link
+    to another file."""
 
     def __init__(self, path: Path):
         check_target(path)
-        self.file = path.open("w", newline="")  # a rerun replays the run from its store: a new log
+        path.unlink(missing_ok=True)
+        self.file = path.open("x", newline="")
         self.writer = csv.writer(self.file)
         self.writer.writerow(COLUMNS)
 
@@ -188,7 +191,7 @@ class Tracker:
                 row for task, arms in verdict.tasks.items() 
                 for row in self._rows("verdict", _numbers(to_dicts(arms)), task)]
         else:
-            arms = {"base": summary.base.to_dict(), "zero": summary.zero.to_dict()}
+            arms = {BASE.key: summary.base.to_dict(), ZERO.key: summary.zero.to_dict()}
             rows = self._rows("verdict", _numbers(arms | {t.id: t.to_dict() for t in summary.tickets}))
         self._write(rows)
         self._close()

@@ -297,14 +297,14 @@ def _into_new_folder(out: Path, fill: Callable[[Path], dict], cfg: PolicyConfig)
 
 def measure(policy_dir: Path, task, heldout: int, workers: int = 1) -> dict:
     """Base and zero-ticket success of a saved policy on the first `heldout` held-out seeds."""
-    from goldenticket.evaluation import Evaluator, judge
+    from goldenticket.evaluation import BASE, ZERO, Evaluator, judge
     from goldenticket.noise import Constant
 
     with Evaluator.open(str(policy_dir), task, EngineOptions(workers=workers)) as evaluator:
         zero = Constant(np.zeros(MLPPolicy.load(policy_dir).noise_shape, np.float32))
         with evaluator.progress(2 * heldout, "held-out: base and zero ticket"):
-            judged = judge(evaluator, {"zero": zero}, seeds_in("heldout", heldout))
-    return {"base": judged["base"].to_dict(), "zero": judged["zero"].to_dict()}
+            rows = judge(evaluator, {ZERO: zero}, seeds_in("heldout", heldout)).rows
+    return {arm.key: rows[arm].to_dict() for arm in (BASE, ZERO)}
 
 
 def write_card(directory: Path, card: dict, cfg: PolicyConfig) -> None:

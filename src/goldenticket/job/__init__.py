@@ -5,8 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from goldenticket.config import SearchConfig
 from goldenticket.evaluation import Evaluator
 from goldenticket.job import folder, stages
@@ -26,7 +24,7 @@ def find_golden_tickets(cfg: SearchConfig, out: str | Path) -> Summary | Multita
     per task and on average (`Plan.where` spreads the search's episodes over them)."""
     cfg.check()
     out_name, out = out, Path(out)  # the name as given: Path("") would be the current folder
-    policy = load_policy(cfg.policy, cfg.device)
+    policy = load_policy(cfg.policy, cfg.device, **cfg.policy_settings())
     plan = Plan.of(cfg, policy, checked_tasks(policy, cfg))
     optimizer, others = stages.optimizer(plan), other_candidates(plan)
     with Evaluator.open(cfg.policy, plan.tasks, cfg, objective=cfg.objective, loaded=policy) as evaluator, \
@@ -47,8 +45,7 @@ def find_golden_tickets(cfg: SearchConfig, out: str | Path) -> Summary | Multita
     tracker.finish(summary)
     order = {id(c): i for i, c in enumerate(result.candidates)}  # a search ticket's place in the search
     place = {ticket.id: order[id(c)] for ticket, c in zip(candidates, top, strict=True)}
-    base_return = float(np.mean([r.ret for judged in per_task.values() for r in judged["base"].results]))
-    folder.pictures(plan, summary, result, place, base_return, out)
+    folder.pictures(plan, summary, result, place, out)
     return summary
 
 

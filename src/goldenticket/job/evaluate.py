@@ -3,14 +3,16 @@ the settings they were found with."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
 from tqdm import tqdm
 
-from goldenticket.config import EvaluateConfig, named
-from goldenticket.errors import OptionError
-from goldenticket.evaluation import Evaluator, VerdictRow, adjust_for_multiplicity, judge
+from goldenticket import checks
+from goldenticket.config import RECORDED_SETTINGS, EvaluateConfig, named
+from goldenticket.errors import OptionError, UserError
+from goldenticket.evaluation import BASE, MIXTURE, ZERO, Arm, Evaluator, VerdictRow, judge
 from goldenticket.factories import is_import_string
 from goldenticket.job.plan import Names
 from goldenticket.noise import Constant, Gaussian, TopK
@@ -22,7 +24,7 @@ from goldenticket.tasks import get_task
 from goldenticket.tickets import Ticket, zero_ticket
 
 
-def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict[str, VerdictRow]:
+def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict[Arm, VerdictRow]:
     """Base, zero ticket and each ticket on the held-out `cfg.seeds`: one-sided paired p-values vs
     base and vs zero, Holm-adjusted over the tickets; episodes kept in `store` if given. The task,
     `max_steps` and `success` default to those the tickets were found under; a ticket found for
@@ -33,7 +35,8 @@ def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict
     cfg.check()
     seeds = list(cfg.seeds)
     require_heldout(seeds)
-    policy = load_policy(cfg.policy, cfg.device)
+    cfg = with_recorded_settings(cfg)
+    policy = load_policy(cfg.policy, cfg.device, **cfg.policy_settings())
     loaded = {path: Ticket.load(path, expected_shape=policy.noise_shape)
               for path in map(find_ticket, cfg.tickets)}
     given = {"task": cfg.task, "max_steps": cfg.max_steps, "success": cfg.success}
@@ -48,23 +51,38 @@ def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict
     tickets = list({t.id: t for t in loaded.values()}.values())  # a ticket named twice is judged once
     if cfg.mixture and len(tickets) < 2:
         raise OptionError("mixture needs at least 2 different tickets (tickets A and B)", "mixture")
-    task.check()
+    checks.require(task, policy, acting=False)  # the policy reads the task's observations, then the task's
     zero = Constant(zero_ticket(policy.noise_shape).noise)
-    reseeded = {"base": lambda r: Gaussian(cfg.seed + r), "zero": lambda r: zero}
-    reseeded |= {t.id: lambda r, t=t: Constant(t.noise) for t in tickets}
+    reseeded = {BASE: lambda r: Gaussian(cfg.seed + r), ZERO: lambda r: zero}
+    reseeded |= {Arm.ticket(t.id): lambda r, t=t: Constant(t.noise) for t in tickets}
     if cfg.mixture:
         stacked = np.stack([t.noise for t in tickets])
-        reseeded["mixture"] = lambda r: TopK(stacked, cfg.seed + r, cfg.epsilon)
-    sources = {label: source(0) for label, source in reseeded.items() if label != "base"}
+        reseeded[MIXTURE] = lambda r: TopK(stacked, cfg.seed + r, cfg.epsilon)
+    sources = {arm: source(0) for arm, source in reseeded.items() if arm != BASE}
     with Evaluator.open(cfg.policy, task, cfg, store, loaded=policy) as evaluator, \
             evaluator.progress(len(seeds) * (len(sources) + 1), "evaluating"):
-        judged = judge(evaluator, sources, seeds, Gaussian(cfg.seed))
-    adjust_for_multiplicity(judged, [label for label in sources if label != "zero"])
-    rows = {label: j.row() for label, j in judged.items()}
+        rows = dict(judge(evaluator, sources, seeds, Gaussian(cfg.seed)).rows)
     if cfg.mixture:
-        for label, source in tqdm(reseeded.items(), desc="diversity", unit="arm"):
-            rows[label] = replace(rows[label], diversity=action_spread(policy, task, source, seeds[:10]))
+        for arm, source in tqdm(reseeded.items(), desc="diversity", unit="arm"):
+            rows[arm] = replace(rows[arm], diversity=action_spread(policy, task, source, seeds[:10]))
     return rows
+
+
+def with_recorded_settings(cfg: EvaluateConfig) -> EvaluateConfig:
+    """`cfg` with the rename_map and policy_override its tickets were found under, where it gives none;
+    OptionError where the tickets record different ones."""
+    tickets = {ref: Ticket.load(find_ticket(ref)) for ref in cfg.tickets}
+    recorded = {}
+    for key in RECORDED_SETTINGS:
+        values = {ref: ticket.metadata[key] for ref, ticket in tickets.items() if key in ticket.metadata}
+        if getattr(cfg, key) is not None or not values:
+            continue
+        if not all(isinstance(value, dict) for value in values.values()):
+            raise UserError(f"{next(iter(values))}: ticket metadata {key} must be an object")
+        if len({json.dumps(value, sort_keys=True) for value in values.values()}) > 1:
+            raise OptionError(f"the tickets were found under different {key}; give {key}", key)
+        recorded[key] = next(iter(values.values()))
+    return replace(cfg, **recorded)
 
 
 def found_under(tickets: list[Ticket], given: dict, allow_transfer: bool = False) -> dict:

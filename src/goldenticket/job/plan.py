@@ -9,10 +9,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from goldenticket import checks
 from goldenticket.config import SearchConfig, named
 from goldenticket.errors import OptionError
 from goldenticket.noise import Constant, Gaussian
-from goldenticket.policies import NoisePolicy, for_task, identity, policy_label
+from goldenticket.policies import NoisePolicy, identity, policy_label
 from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
 from goldenticket.ticket_search.subspace import Subspace
@@ -107,14 +108,14 @@ class Plan:
 
 
 def checked_tasks(policy: NoisePolicy, cfg: SearchConfig) -> list:
-    """The run's tasks, each one the policy can act on and whose reset(seed) fixes the initial
-    state (UserError now, not mid-run)."""
+    """The run's tasks, each one passing every check of `goldenticket.checks` with the policy (the
+    policy acts on it and answers its noise, the same seed gives the same episode): UserError now,
+    not mid-run."""
     tasks = [get_task(name, cfg.max_steps, cfg.success) for name in cfg.tasks]
     if len({t.name for t in tasks}) < len(tasks):
         raise OptionError("a task is given twice", "task")
     for task in tasks:
-        for_task(policy, task)
-        task.check()
+        checks.require(task, policy)
     return tasks
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from goldenticket.config import RECORDED_SETTINGS
 from goldenticket.job.plan import Plan
 from goldenticket.policies import find_ticket
 from goldenticket.ticket_search import Candidate, SearchResult
@@ -12,12 +13,14 @@ from goldenticket.tickets import GIVEN, ZERO_SOURCE, Ticket, TicketRecord, zero_
 
 
 def found_for(plan: Plan, **how) -> TicketRecord:
-    """A candidate's record: the policy, task(s) and settings it is for, then `how` it came."""
-    names, tasks = plan.names, plan.task_names
+    """A candidate's record: the policy, task(s) and settings it is for (a LeRobot checkpoint's
+    rename_map and policy_override among them, where given), then `how` it came."""
+    names, tasks, cfg = plan.names, plan.task_names, plan.cfg
+    settings = {key: getattr(cfg, key) for key in RECORDED_SETTINGS if getattr(cfg, key)}
     return TicketRecord(policy=names.policy, policy_fingerprint=names.fingerprint,
                         noise_shape=tuple(plan.policy.noise_shape), task=names.task,
                         tasks=tuple(tasks) if len(tasks) > 1 else None, max_steps=names.max_steps,
-                        success=names.success, **how)
+                        success=names.success, extra=settings, **how)
 
 
 def searched(plan: Plan, result: SearchResult, candidate: Candidate) -> Ticket:

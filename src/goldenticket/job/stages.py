@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.errors import OptionError
-from goldenticket.evaluation import Evaluator, Judged, judge, judge_size
+from goldenticket.evaluation import ZERO, Arm, Evaluator, Verdict, judge, judge_size
 from goldenticket.files import write_atomic
 from goldenticket.job.folder import ticket_path
 from goldenticket.job.plan import Plan
@@ -31,6 +31,7 @@ from goldenticket.ticket_search import (
     query_evaluator,
     run_search,
 )
+from goldenticket.ticket_search.racing import Race, better_half, halving_sizes, in_blocks
 from goldenticket.tickets import Ticket, ticket_id
 
 Evaluate = Callable  # the driver's evaluate(queries) -> outcomes
@@ -117,41 +118,30 @@ class Validated:
 def validate(plan: Plan, evaluator: Evaluator, tickets: list[Ticket], top_k: int | None = None) -> Validated:
     """The `top_k` (default: the config's) of `tickets` by mean return on the validation seeds of
     every task (ties: search rank): a selection on states neither the search nor the held-out
-    verdict uses. With the run's `halving`, the tickets run VALIDATION_BLOCK seeds at a time and the
-    better half goes on while that half is more than `top_k` (`halving_sizes`); each is scored on the
-    seeds it ran."""
+    verdict uses. With the run's `halving`, the tickets race on VALIDATION_BLOCK seeds at a time and
+    the better half goes on while that half is more than `top_k` (`racing.halving_sizes`); each is
+    scored on the seeds it ran."""
     seeds, tasks, k = plan.seeds.validation, plan.task_names, top_k or plan.cfg.top_k
-    block = VALIDATION_BLOCK if plan.cfg.halves() else len(seeds)
-    blocks = [seeds[i : i + block] for i in range(0, len(seeds), block)]
+    blocks = in_blocks(seeds, VALIDATION_BLOCK if plan.cfg.halves() else len(seeds))
     sizes = halving_sizes(len(tickets), k, len(blocks))
-    returns: list[list[list[float]]] = [[[] for _ in tasks] for _ in tickets]  # ticket -> task -> returns
-    alive = list(range(len(tickets)))
+    race = Race(len(tickets), better_half, _score, len(sizes))
     with evaluator.progress(len(tasks) * sum(n * len(b) for n, b in zip(sizes, blocks, strict=False)),
                             "validation: search's best tickets"):
-        for n, seeds_now in zip(sizes, blocks, strict=False):
-            alive = sorted(sorted(alive, key=lambda i: -_score(returns[i]))[:n]) if n < len(alive) else alive
-            jobs = [(tickets[i].id, Constant(tickets[i].noise), seeds_now) for i in alive]
-            for j, task in enumerate(tasks):
-                for i, results in zip(alive, evaluator.run(jobs, task), strict=True):
-                    returns[i][j] += [r.ret for r in results]
-    scored = [t.with_record(validation_score=_score(r), validation_seeds=(seeds[0], seeds[len(r[0]) - 1]))
-              for t, r in zip(tickets, returns, strict=True)]
-    ranked = sorted(alive, key=lambda i: -_score(returns[i]))  # stable: ties keep search rank
-    return Validated(scored, [scored[i] for i in ranked[:k]])
+        while not race.over:
+            jobs = [(tickets[i].id, Constant(tickets[i].noise), blocks[race.round]) for i in race.alive]
+            per_task = [evaluator.run(jobs, task) for task in tasks]
+            race.record([[[r.ret for r in results] for results in ticket]
+                         for ticket in zip(*per_task, strict=True)])
+    scored = [t.with_record(validation_score=_score(rounds),
+                            validation_seeds=(seeds[0], blocks[len(rounds) - 1][-1]))  # its last seed
+              for t, rounds in zip(tickets, race.results, strict=True)]
+    return Validated(scored, [scored[i] for i in race.ranked()[:k]])  # ranked: ties keep search rank
 
 
-def halving_sizes(tickets: int, keep: int, blocks: int) -> list[int]:
-    """How many of `tickets` run on each of at most `blocks` blocks when each next block takes the
-    better half, while that half is more than the `keep` to choose: [10, 5] for 10, 3 and 4."""
-    sizes = [tickets]
-    while len(sizes) < blocks and sizes[-1] // 2 > keep:
-        sizes.append(sizes[-1] // 2)
-    return sizes
-
-
-def _score(returns: list[list[float]]) -> float:
-    """A ticket's validation score: its mean return per task, averaged over the tasks."""
-    return float(np.mean([np.mean(per_task) for per_task in returns]))
+def _score(rounds: list[list[list[float]]]) -> float:
+    """A ticket's validation score from its rounds (each its returns per task): its mean return per
+    task, averaged over the tasks."""
+    return float(np.mean([np.mean([r for run in runs for r in run]) for runs in zip(*rounds, strict=True)]))
 
 
 def with_zero(tickets: list[Ticket], zero: Ticket) -> list[Ticket]:
@@ -161,10 +151,11 @@ def with_zero(tickets: list[Ticket], zero: Ticket) -> list[Ticket]:
     return tickets if any(t.id == zero.id for t in tickets) else [*tickets, zero]
 
 
-def verdict(plan: Plan, evaluator: Evaluator, tickets: list[Ticket]) -> dict[str, dict[str, Judged]]:
-    """Base, zero ticket and `tickets` judged on the held-out seeds of each task."""
+def verdict(plan: Plan, evaluator: Evaluator, tickets: list[Ticket]) -> dict[str, Verdict]:
+    """Base, zero ticket and `tickets` judged on the held-out seeds of each task (p-values
+    Holm-adjusted over the tickets there)."""
     heldout = plan.seeds.heldout
-    sources = {"zero": plan.zero} | {t.id: Constant(t.noise) for t in tickets}
+    sources = {ZERO: plan.zero} | {Arm.ticket(t.id): Constant(t.noise) for t in tickets}
     with evaluator.progress(judge_size(sources, len(heldout)) * len(plan.tasks), "held-out: top tickets"):
         return {name: judge(evaluator, sources, heldout, plan.base, name) for name in plan.task_names}
 

@@ -34,6 +34,16 @@ class TicketedPolicy:
         self.policy = policy
         self.use(noise)
 
+    @property
+    def noise_shape(self) -> tuple[int, int]:
+        """(H, A): the ticket's shape, the policy's noise shape."""
+        return tuple(self.policy.noise_shape)
+
+    @property
+    def n_exec(self) -> int:
+        """Actions each `act` returns per observation, to execute before calling again."""
+        return self.policy.n_exec
+
     def use(self, noise: np.ndarray) -> None:
         """Switch to another ticket (e.g. another point of a Pareto front) between episodes; the
         model stays loaded."""

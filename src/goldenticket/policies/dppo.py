@@ -35,6 +35,7 @@ from torch import nn
 
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
+from goldenticket.policies.folder import mismatch, planned_shapes, shown
 from goldenticket.policies.numerics import float64, in_blocks, on_grid
 
 SAMPLERS = ("DiffusionModel", "DiffusionEval", "VPGDiffusion", "PPODiffusion")  # model._target_ classes
@@ -183,6 +184,12 @@ class DPPOConfig:
 
 
 _REQUIRED, _ABSENT = object(), object()
+MAX_SIZE = 10_000  # the most any integer read (a width, a dimension, a step count) may be
+MAX_LAYERS = 64  # widths in mlp_dims or cond_mlp_dims
+MAX_INTERPOLATIONS = 10_000  # ${...} resolved in reading one config
+MAX_EXPRESSION = 1000  # characters of one ${eval:'...'}, its references written in
+MAX_DEPTH = 100  # nesting of its operations
+MAX_NUMBER = 1e18  # magnitude of any number in it
 
 
 class _Yaml:
@@ -191,10 +198,12 @@ class _Yaml:
     def __init__(self, path: Path):
         import yaml
 
-        self.path = path
+        self.path, self.interpolations = path, 0
         try:
             self.root = yaml.safe_load(path.read_text())
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        except RecursionError:
+            raise UserError(f"{path}: not a YAML file (nested too deeply)") from None
+        except (yaml.YAMLError, ValueError) as exc:  # ValueError: an integer of too many digits, or no UTF-8
             raise UserError(f"{path}: not a YAML file ({str(exc).splitlines()[0]})") from None
         if not isinstance(self.root, dict):
             raise UserError(f"{path}: not a DPPO config (a YAML mapping with a `model` section)")
@@ -207,16 +216,20 @@ class _Yaml:
 
     def integer(self, key: str, default=_REQUIRED, least: int = 1) -> int:
         value = self.get(key, default)
-        if not (isinstance(value, int) and not isinstance(value, bool) and value >= least):
-            raise UserError(f"{self.path}: {key} must be an integer >= {least}, got {value!r}")
+        if not (isinstance(value, int) and not isinstance(value, bool) and least <= value <= MAX_SIZE):
+            raise UserError(f"{self.path}: {key} must be an integer in {least}..{MAX_SIZE}, got "
+                            f"{shown(value)}")
         return value
 
     def number(self, key: str, default) -> float | None:
         value = self.get(key, default)
         try:
-            return None if value is None else float(value)  # YAML 1.1 reads 1e-4 as a string
-        except (TypeError, ValueError):
-            raise UserError(f"{self.path}: {key} must be a number or null, got {value!r}") from None
+            number = None if value is None else float(value)  # YAML 1.1 reads 1e-4 as a string
+        except (TypeError, ValueError, OverflowError):
+            number = math.nan
+        if number is not None and not math.isfinite(number):
+            raise UserError(f"{self.path}: {key} must be a finite number or null, got {shown(value)}")
+        return number
 
     def flag(self, key: str, default: bool) -> bool:
         value = self.get(key, default)
@@ -226,8 +239,8 @@ class _Yaml:
 
     def choice(self, key: str, default: str, choices) -> str:
         value = self.get(key, default)
-        if value not in choices:
-            raise UserError(f"{self.path}: {key} is {value!r}; DPPO's DiffusionMLP takes "
+        if not (isinstance(value, str) and value in choices):
+            raise UserError(f"{self.path}: {key} is {shown(value)}; DPPO's DiffusionMLP takes "
                             f"{', '.join(choices)}")
         return value
 
@@ -235,9 +248,11 @@ class _Yaml:
         value = self.get(key, default)
         if value is None:
             return None
-        if not (isinstance(value, list | tuple) and value
-                and all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in value)):
-            raise UserError(f"{self.path}: {key} must be a list of layer widths, got {value!r}")
+        widths = isinstance(value, list | tuple) and 0 < len(value) <= MAX_LAYERS
+        if not (widths and all(isinstance(d, int) and not isinstance(d, bool) and 1 <= d <= MAX_SIZE
+                               for d in value)):
+            raise UserError(f"{self.path}: {key} must be a list of 1 to {MAX_LAYERS} layer widths in "
+                            f"1..{MAX_SIZE}, got {shown(value)}")
         return tuple(value)
 
     def _raw(self, key: str, default, where: str | None = None):
@@ -260,6 +275,10 @@ class _Yaml:
             return value
         if depth > 32:
             raise UserError(f"{self.path}: {key} interpolates itself")
+        self.interpolations += 1
+        if self.interpolations > MAX_INTERPOLATIONS:
+            raise UserError(f"{self.path}: {key}: more than {MAX_INTERPOLATIONS} interpolations in reading "
+                            "the config; write the values themselves")
         text = value.strip()
         if whole := re.fullmatch(r"\$\{\s*([\w.]+)\s*\}", text):
             return self._resolved(self._raw(whole[1], _REQUIRED, key), whole[1], depth + 1)
@@ -277,27 +296,50 @@ _OPERATORS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.m
 _FUNCTIONS = {"round": round, "int": int, "float": float, "min": min, "max": max, "abs": abs}
 
 
+class _OutOfBounds(Exception):
+    """An expression past one of the bounds on its length, nesting or numbers; the message says which."""
+
+
 def _arithmetic(code: str, where: str):
     """The value of `${eval:'...'}` where it is arithmetic (numbers, + - * / // %, round, int, float,
-    min, max, abs), computed without running code from the file; a one-line UserError otherwise."""
+    min, max, abs), computed without running code from the file: at most MAX_EXPRESSION characters,
+    nested at most MAX_DEPTH deep, every number within MAX_NUMBER; a one-line UserError otherwise."""
 
-    def value(node):
-        if isinstance(node, ast.Constant) and type(node.value) in (int, float):
-            return node.value
-        if isinstance(node, ast.BinOp) and type(node.op) in _OPERATORS:
-            return _OPERATORS[type(node.op)](value(node.left), value(node.right))
-        if isinstance(node, ast.UnaryOp) and type(node.op) in _OPERATORS:
-            return _OPERATORS[type(node.op)](value(node.operand))
-        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _FUNCTIONS
-                and not node.keywords):
-            return _FUNCTIONS[node.func.id](*map(value, node.args))
-        raise ValueError
+    def value(node, depth: int):
+        if depth > MAX_DEPTH:
+            raise _OutOfBounds(f"nested more than {MAX_DEPTH} deep")
+        result = _operation(node, lambda child: value(child, depth + 1))
+        if not abs(result) <= MAX_NUMBER:  # NaN and infinities too
+            raise _OutOfBounds(f"a number past {MAX_NUMBER:g}")
+        return result
 
     try:
-        return value(ast.parse(code, mode="eval").body)
-    except (SyntaxError, ValueError, TypeError, ZeroDivisionError):
+        if len(code) > MAX_EXPRESSION:
+            raise _OutOfBounds(f"longer than {MAX_EXPRESSION} characters, its references written in")
+        return value(ast.parse(code, mode="eval").body, 0)
+    except _OutOfBounds as exc:
+        raise UserError(f"{where}: {exc}; write the value itself") from None
+    except (SyntaxError, ValueError, TypeError, ArithmeticError, RecursionError, MemoryError):
         raise UserError(f"{where}: goldenticket evaluates only arithmetic here; write the value "
                         "itself") from None
+
+
+def _operation(node, value):
+    """One node of an arithmetic expression, its operands' values given by `value`; ValueError for
+    anything else (round's digits only within 0..MAX_DEPTH)."""
+    if isinstance(node, ast.Constant) and type(node.value) in (int, float):
+        return node.value
+    if isinstance(node, ast.BinOp) and type(node.op) in _OPERATORS:
+        return _OPERATORS[type(node.op)](value(node.left), value(node.right))
+    if isinstance(node, ast.UnaryOp) and type(node.op) in _OPERATORS:
+        return _OPERATORS[type(node.op)](value(node.operand))
+    if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _FUNCTIONS
+            and not node.keywords):
+        args = [value(arg) for arg in node.args]
+        if node.func.id == "round" and len(args) == 2 and not 0 <= args[1] <= MAX_DEPTH:
+            raise ValueError
+        return _FUNCTIONS[node.func.id](*args)
+    raise ValueError
 
 
 def read_config(path: Path, steps: int | None = None) -> DPPOConfig:
@@ -324,6 +366,7 @@ def read_config(path: Path, steps: int | None = None) -> DPPOConfig:
         out_activation_type=cfg.choice(f"{net}.out_activation_type", "Identity", ACTIVATIONS),
         use_layernorm=cfg.flag(f"{net}.use_layernorm", False),
         residual_style=cfg.flag(f"{net}.residual_style", False))
+    planned_shapes(lambda: DiffusionMLP(spec), f"{path}: {net}")
     if spec.residual_style and len(spec.mlp_dims) % 2 == 0:
         raise UserError(f"{path}: {net}.mlp_dims {list(spec.mlp_dims)}: a residual DiffusionMLP needs an odd "
                         "number of widths (a first layer and pairs of layers)")
@@ -411,25 +454,17 @@ def checkpoint_networks(path: Path, cfg: DPPOConfig) -> tuple[DiffusionMLP, Diff
 
 
 def _network(state: dict, prefix: str, spec: NetworkSpec, path: Path) -> DiffusionMLP:
-    network = DiffusionMLP(spec)
     tensors = {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
     if not tensors:
         raise UserError(f"{path}: no tensors under network. or actor. (DPPO's DiffusionMLP weights)")
-    wanted = {k: tuple(v.shape) for k, v in network.state_dict().items()}
     for key, value in sorted(tensors.items()):
         if not isinstance(value, torch.Tensor):
             raise UserError(f"{path}: {prefix}{key} is not a tensor")
-        if key not in wanted:
-            raise UserError(f"{path}: tensor {prefix}{key} {list(value.shape)} has no place in the config's "
-                            f"DiffusionMLP")
-        if tuple(value.shape) != wanted[key]:
-            raise UserError(f"{path}: tensor {prefix}{key} has shape {list(value.shape)}; the config's "
-                            f"DiffusionMLP needs {list(wanted[key])}")
-    missing = sorted(wanted.keys() - tensors.keys())
-    if missing:
-        more = f" ({len(missing) - 1} more missing)" if len(missing) > 1 else ""
-        raise UserError(f"{path}: no tensor {prefix}{missing[0]} {list(wanted[missing[0]])}, which the "
-                        f"config's DiffusionMLP needs{more}")
+    given = {key: tuple(value.shape) for key, value in tensors.items()}
+    wanted = planned_shapes(lambda: DiffusionMLP(spec), str(path))
+    if problem := mismatch(given, wanted, "the config's DiffusionMLP", prefix):
+        raise UserError(f"{path}: {problem}")
+    network = DiffusionMLP(spec)
     network.load_state_dict(tensors)
     return network.eval()
 

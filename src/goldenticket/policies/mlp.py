@@ -5,18 +5,19 @@ from __future__ import annotations
 import copy
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import MISSING, asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
 import torch
-from safetensors import SafetensorError
-from safetensors.torch import load_file, save
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save
 from torch import nn
 from torch.nn import functional
 
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
+from goldenticket.policies.folder import mismatch, planned_shapes, read_json, shown
 from goldenticket.policies.numerics import float64, in_blocks, on_grid, state_hash
 
 KINDS = ("flow", "ddim")
@@ -38,6 +39,63 @@ class PolicyConfig:
     train_timesteps: int = 100  # DDIM's discrete training schedule
     tasks: list[str] | None = None  # multi-task: the network also sees a one-hot over these tasks
     image_size: int | None = None  # sees {"pixels": uint8 [B, S, S, 3], "agent_pos": [B, obs_dim]}
+
+
+MAX_TASKS = 1000
+
+
+def _integer(low: int, high: int, nullable: bool = False):
+    """A field's check: an integer (a bool is none) in low..high, or null where `nullable`."""
+    def accepts(value) -> bool:
+        return (nullable and value is None) or (
+            isinstance(value, int) and not isinstance(value, bool) and low <= value <= high)
+    return accepts, ("null or " if nullable else "") + f"an integer in {low}..{high}"
+
+
+def _task_names(value) -> bool:
+    return value is None or (isinstance(value, list) and 0 < len(value) <= MAX_TASKS
+                             and all(isinstance(name, str) and name for name in value)
+                             and len(set(value)) == len(value))
+
+
+FIELDS = {  # each field of a PolicyConfig: what it accepts and how to say so; the integers' ranges reach
+    # past any policy made here and stop short of a network no machine builds or a call none runs
+    "name": (lambda value: isinstance(value, str) and value != "", "a non-empty string"),
+    "kind": (lambda value: value in KINDS, f"one of {', '.join(KINDS)}"),
+    "obs_dim": _integer(1, 4096), "action_dim": _integer(1, 64), "horizon": _integer(1, 256),
+    "n_exec": _integer(1, 256), "hidden": _integer(1, 8192), "layers": _integer(1, 64),
+    "steps": _integer(1, 1000), "train_timesteps": _integer(2, 10_000),
+    "tasks": (_task_names, f"null or a list of distinct task names (at most {MAX_TASKS})"),
+    "image_size": _integer(8, 512, nullable=True),
+}
+
+
+def check_config(values: dict, where: str) -> PolicyConfig:
+    """The PolicyConfig of `values` (a config.json's fields), once each is checked as an option is:
+    no unknown or missing field, each of its type (a bool is no integer) and range, the fields
+    together, and the size of the network they describe (nothing is built); else a one-line UserError
+    naming `where` and the field."""
+    if unknown := sorted(set(values) - FIELDS.keys()):
+        raise UserError(f"{where}: unknown field {', '.join(unknown)}; a policy config.json has "
+                        f"{', '.join(FIELDS)}")
+    required = [f.name for f in fields(PolicyConfig) if f.default is MISSING]
+    if missing := [name for name in required if name not in values]:
+        raise UserError(f"{where}: no {', '.join(missing)} (a policy config.json needs "
+                        f"{', '.join(required)})")
+    for name, value in values.items():
+        accepts, wanted = FIELDS[name]
+        if not accepts(value):
+            raise UserError(f"{where}: {name} must be {wanted}, got {shown(value)}")
+    cfg = PolicyConfig(**values)
+    if cfg.n_exec > cfg.horizon:
+        raise UserError(f"{where}: n_exec {cfg.n_exec} cannot exceed horizon {cfg.horizon}")
+    if cfg.kind == "ddim" and cfg.steps > cfg.train_timesteps:
+        raise UserError(f"{where}: steps {cfg.steps} exceeds train_timesteps {cfg.train_timesteps} (DDIM "
+                        "steps are trained timesteps)")
+    if cfg.image_size and cfg.tasks:
+        raise UserError(f"{where}: an image policy (image_size) cannot also be multi-task (tasks)")
+    planned_shapes(lambda: Denoiser(cfg), where)
+    return cfg
 
 
 def _time_embedding(t: torch.Tensor, dim: int = 32) -> torch.Tensor:
@@ -163,12 +221,7 @@ class MLPPolicy:
     task: str | None = None  # the task a multi-task policy is conditioned on
 
     def __init__(self, cfg: PolicyConfig, model: Denoiser | None = None):
-        if cfg.kind not in KINDS:
-            raise UserError(f"unknown policy kind {cfg.kind!r}; choose from {KINDS}")
-        if cfg.kind == "ddim" and not 1 <= cfg.steps <= cfg.train_timesteps:
-            raise UserError(f"DDIM steps must be in 1..{cfg.train_timesteps}, got {cfg.steps}")
-        if cfg.image_size and cfg.tasks:
-            raise UserError("an image policy cannot also be multi-task")
+        check_config(asdict(cfg), f"policy {cfg.name!r}")
         self.cfg = cfg
         self.model = (model or Denoiser(cfg)).eval()
         self._scale = copy.deepcopy(self.model).double()  # float64: (de)normalisation and the network
@@ -273,13 +326,31 @@ class MLPPolicy:
 
     @classmethod
     def load(cls, directory: Path) -> MLPPolicy:
-        try:
-            cfg = PolicyConfig(**json.loads((directory / "config.json").read_text()))
-            model = Denoiser(cfg)
-            model.load_state_dict(load_file(str(directory / "model.safetensors")))
-        except SafetensorError as exc:
-            weights = directory / "model.safetensors"
-            raise UserError(f"{weights}: not a valid safetensors file ({exc})") from None
-        except (OSError, ValueError, TypeError, RuntimeError) as exc:
-            raise UserError(f"cannot load policy from {directory}: {exc}") from None
+        """The policy in `directory` (config.json + model.safetensors): every field of the config and
+        every tensor's name and shape checked before the network is built; a one-line UserError
+        naming the file otherwise."""
+        config = directory / "config.json"
+        values = read_json(config)
+        if not isinstance(values, dict):
+            raise UserError(f"{config}: not a policy config (a JSON object of its fields)")
+        cfg = check_config(values, str(config))
+        wanted = planned_shapes(lambda: Denoiser(cfg), str(config))
+        tensors = _tensors(directory / "model.safetensors", wanted)
+        model = Denoiser(cfg)
+        model.load_state_dict(tensors)
         return cls(cfg, model)
+
+
+def _tensors(weights: Path, wanted: dict[str, tuple[int, ...]]) -> dict[str, torch.Tensor]:
+    """The tensors of a safetensors file, once their names and shapes are the `wanted` ones (read from
+    its header first); a one-line UserError naming the file otherwise."""
+    try:
+        with safe_open(str(weights), "pt") as file:
+            given = {key: tuple(file.get_slice(key).get_shape()) for key in file.keys()}  # noqa: SIM118 (no __iter__)
+            if problem := mismatch(given, wanted, "the network its config.json describes"):
+                raise UserError(f"{weights}: {problem}")
+            return {key: file.get_tensor(key) for key in given}
+    except SafetensorError as exc:
+        raise UserError(f"{weights}: not a valid safetensors file ({exc})") from None
+    except OSError as exc:
+        raise UserError(f"cannot read {weights}: {exc.strerror}") from None

@@ -1,14 +1,11 @@
-"""Bundled policies, named like `metaworld/pick-place-v3/flow`, shipped inside the package.
-
-A policy name may end in `@N` to run with N denoising steps instead of the trained default,
-e.g. `metaworld/pick-place-v3/ddim@2`; the weights are the same, only inference changes.
-"""
+"""Policies by name: a bundled policy (`zoo`), a folder (goldenticket's own, LeRobot's or DPPO's),
+a Hugging Face Hub repo id (its snapshot), an import string or a NoisePolicy object; tickets fitted to
+them and deployed."""
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import math
 from pathlib import Path
 
@@ -18,55 +15,35 @@ from goldenticket.policies import dppo, lerobot
 from goldenticket.policies.base import NoisePolicy, TicketedPolicy
 from goldenticket.policies.mlp import MLPPolicy
 from goldenticket.tickets import MAX_VALUES, Ticket
-
-BUNDLED_DIR = Path(__file__).parent / "bundled"
-
-
-def policy_names() -> list[str]:
-    """The bundled policies' names; a hidden folder (a policy being built) is none."""
-    names = (cfg.parent.relative_to(BUNDLED_DIR) for cfg in BUNDLED_DIR.rglob("config.json"))
-    return sorted(str(name) for name in names if not any(part.startswith(".") for part in name.parts))
-
-
-def bundled_tickets() -> list[Path]:
-    """Golden tickets shipped beside the bundled policies (`<policy>/tickets/<id>.safetensors`)."""
-    return sorted(BUNDLED_DIR.rglob("tickets/*.safetensors"))
+from goldenticket.zoo import (  # noqa: F401  (re-exported: the package's names)
+    BUNDLED_DIR,
+    bundled,
+    bundled_task,
+    bundled_tickets,
+    find_ticket,
+    is_hub_id,
+    policy_names,
+    split_steps,
+)
 
 
-def find_ticket(ref: str) -> Path:
-    """A ticket file path, or the id of a bundled ticket (as `goldenticket tickets list` shows)."""
-    path = Path(ref)
-    if path.is_file():
-        return path
-    matches = [p for p in bundled_tickets() if p.stem == ref]
-    if not matches:
-        raise UserError(f"{ref}: no such ticket file or bundled ticket id (see `goldenticket tickets list`)")
-    if len(matches) > 1:
-        raise UserError(f"ticket id {ref} is ambiguous; name one file: "
-                        + ", ".join(str(p) for p in matches))
-    return matches[0]
-
-
-def split_steps(name: str) -> tuple[str, int | None]:
-    """`"a/b/ddim@2"` -> `("a/b/ddim", 2)`; a name without `@N` -> `(name, None)`."""
-    base, at, steps = name.rpartition("@")
-    if not at:
-        return name, None
-    if not steps.isdigit() or int(steps) < 1:
-        raise UserError(f"policy {name!r}: the part after '@' must be a step count >= 1")
-    return base, int(steps)
-
-
-def load_policy(name: str | NoisePolicy, device: str = "cpu") -> NoisePolicy:
+def load_policy(name: str | NoisePolicy, device: str = "cpu", rename_map: dict | None = None,
+                overrides: dict | None = None) -> NoisePolicy:
     """A bundled policy by name, a policy directory (config.json + model.safetensors), a LeRobot
-    checkpoint folder or a DPPO checkpoint (a folder with a `.pt`, or the `.pt`), where an `@N` suffix
-    sets the number of denoising steps, any NoisePolicy
-    built by an import string `package.module:factory`, or a NoisePolicy object itself (checked).
-    `device` places a LeRobot checkpoint's model; every other policy runs where it runs (the
-    bundled ones on the CPU, where their numbers are the same on every machine)."""
+    checkpoint folder or the Hugging Face Hub repo id of one (`lerobot/smolvla_libero`), or a DPPO
+    checkpoint (a folder with a `.pt`, or the `.pt`), where an `@N` suffix sets the number of
+    denoising steps, any NoisePolicy built by an import string `package.module:factory`, or a
+    NoisePolicy object itself (checked). `device` places a LeRobot checkpoint's model, `rename_map`
+    renames its env's observation keys and `overrides` change settings of its config, as
+    `lerobot-eval` takes them; every other policy runs where it runs (the bundled ones on the CPU,
+    where their numbers are the same on every machine)."""
     base, steps = split_steps(name) if isinstance(name, str) else (None, None)
-    if isinstance(name, str) and not is_import_string(name) and lerobot.is_checkpoint(Path(base)):
-        return lerobot.load(Path(base), steps, name, device)
+    path = policy_folder(base) if isinstance(name, str) and not is_import_string(name) else None
+    if path is not None and lerobot.is_checkpoint(path):
+        return lerobot.load(path, steps, name, device, rename_map, overrides)
+    if rename_map or overrides:
+        raise UserError(f"rename_map and policy_override are for LeRobot checkpoints; policy "
+                        f"{policy_label(name)!r} is not one")
     if device != "cpu":
         raise UserError(f"device {device}: only LeRobot checkpoints run on a chosen device; policy "
                         f"{policy_label(name)!r} runs where it runs (bundled policies: on the CPU)")
@@ -74,38 +51,39 @@ def load_policy(name: str | NoisePolicy, device: str = "cpu") -> NoisePolicy:
         return _checked(name, policy_label(name))
     if is_import_string(name):
         return _checked(build(name, "policy"), name)
-    path = Path(base)
     if dppo.is_checkpoint(path):
         return dppo.load(path, steps, name)
     if not (path / "config.json").is_file():
-        path = _bundled(base)
+        path = bundled(base)
     policy = MLPPolicy.load(path)
     if steps is None:
         return policy
     return MLPPolicy(dataclasses.replace(policy.cfg, name=name, steps=steps), policy.model)
 
 
-def bundled_task(name: str) -> str | None:
-    """The task a bundled single-task policy was trained on, the folder its name lies in
-    (`metaworld/pick-place-v3/flow@2` -> `metaworld/pick-place-v3`); None for a multi-task one and for
-    any other policy (an import string, a folder, a LeRobot or DPPO checkpoint); UserError for an unknown
-    name."""
-    if is_import_string(name):
-        return None
-    base, _ = split_steps(name)
-    path = Path(base)
-    if lerobot.is_checkpoint(path) or dppo.is_checkpoint(path) or (path / "config.json").is_file():
-        return None
-    if json.loads((_bundled(base) / "config.json").read_text()).get("tasks"):
-        return None
-    return base.rpartition("/")[0]
+def policy_folder(base: str) -> Path:
+    """What a policy name (without `@N`) names on disk: a path here, else a Hub repo's snapshot, else
+    the name as a path (a bundled policy's name)."""
+    return hub_snapshot(base) if is_hub_id(base) else Path(base)
 
 
-def _bundled(base: str) -> Path:
-    """A bundled policy's folder; UserError naming an unknown one."""
-    if base not in policy_names():
-        raise UserError(f"unknown policy {base!r}; run `goldenticket policies` to list them")
-    return BUNDLED_DIR / base
+def hub_snapshot(repo_id: str) -> Path:
+    """The folder of Hugging Face Hub repo `repo_id` as LeRobot reads `--policy.path=<repo id>`:
+    huggingface_hub's `snapshot_download`, from its cache (HF_HOME, HF_HUB_CACHE; with HF_HUB_OFFLINE=1
+    the cache alone), downloading where a network is; one line naming `hf download` where neither
+    has it."""
+    try:
+        from huggingface_hub import constants, snapshot_download
+    except ImportError:
+        raise UserError(f"policy {repo_id!r} names a Hugging Face Hub repo, and huggingface_hub is not "
+                        "installed here (LeRobot's venv has it)") from None
+    try:
+        return Path(snapshot_download(repo_id))
+    except (OSError, ValueError) as error:
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise UserError(f"policy {repo_id!r} is no folder here, and the Hugging Face Hub repo of that id is "
+                        f"not in the cache ({constants.HF_HUB_CACHE}) nor downloadable ({reason}); download "
+                        f"it where a network is: `hf download {repo_id}`, or name its folder") from None
 
 
 def for_task(policy: NoisePolicy, task) -> NoisePolicy:

@@ -20,7 +20,7 @@ import urllib.request
 
 from goldenticket.errors import UserError
 from goldenticket.session.episode import NextEpisode
-from goldenticket.session.store import ScoreConflict
+from goldenticket.session.folder import ScoreConflict
 
 
 class Client:

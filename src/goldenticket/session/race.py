@@ -15,12 +15,15 @@ Two protocols over N random candidate tickets, each episode's arm hidden from th
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from goldenticket.config import DEFAULT_CONFIRM
 from goldenticket.errors import OptionError, flags_in
+from goldenticket.ticket_search import racing
 from goldenticket.tickets import ticket_id
 
 BASE = "base"
@@ -101,27 +104,42 @@ class Race:
 
 def race(plan: Plan, candidates: list[str], search: list[tuple[str, bool | None]]) -> Race:
     """Replay the search episodes `search` ((arm, success or None) in episode order) of a plan
-    whose candidates are `candidates`, in their order. Fixed: one round; the top 2 go on.
-    Sequential: successive elimination (Even-Dar, Mannor and Mansour, JMLR 7, 2006): after each
-    round, every candidate that trails() the leader is dropped; the next round comes while more
-    than one is left and it fits in N x K episodes. `next_round` is 0 too while a round is
-    being scored."""
-    rank, wins = {arm: i for i, arm in enumerate(candidates)}, dict.fromkeys(candidates, 0)
-    alive, start, each, runs, ends = list(candidates), 0, plan.first_round, 0, []
-    while start < len(search):
-        ends.append(start + len(alive) * each)
-        if any(success is None for _, success in search[start:ends[-1]]):
-            return Race(ends, alive, 0)
-        for arm, success in search[start:ends[-1]]:
-            wins[arm] += bool(success)
-        alive = sorted(alive, key=lambda a: (-wins[a], rank[a]))
-        if plan.stopping == "fixed":
-            return Race(ends, alive[:2], 0)
-        runs += each
-        alive = [a for a in alive if not trails(wins[alive[0]], wins[a], runs)]
-        start, each = ends[-1], ROUND
+    whose candidates are `candidates`, in their order, through a `racing.Race` scored by search
+    successes. Fixed: one round; the top 2 go on. Sequential: successive elimination (Even-Dar,
+    Mannor and Mansour, JMLR 7, 2006): after each round, every candidate that trails() the leader
+    is dropped (`_leaders`); the next round comes while more than one is left and it fits in N x K
+    episodes. `next_round` is 0 too while a round is being scored."""
+    rounds = 1 if plan.stopping == "fixed" else None
+    contest = racing.Race(len(candidates), partial(_leaders, plan), _wins, rounds)
+    start, ends = 0, []
+    while start < len(search) and not contest.over:
+        ends.append(start + len(contest.alive) * (ROUND if contest.round else plan.first_round))
+        played = search[start:ends[-1]]
+        if any(success is None for _, success in played):
+            break
+        contest.record([[bool(success) for arm, success in played if arm == candidates[i]]
+                        for i in contest.alive])
+        start = ends[-1]
+    alive = [candidates[i] for i in contest.ranked()]
+    if contest.over:
+        return Race(ends, alive[:2], 0)
+    if start < len(search):  # a round being scored
+        return Race(ends, alive, 0)
     fits = start + len(alive) * ROUND <= plan.tickets * plan.episodes_per_ticket
     return Race(ends, alive, ROUND if len(alive) > 1 and fits else 0)
+
+
+def _wins(rounds: list[list[bool]]) -> int:
+    """A candidate's search successes, over its rounds."""
+    return sum(map(sum, rounds))
+
+
+def _leaders(plan: Plan, contest: racing.Race) -> list[int]:
+    """Successive elimination's cut: the candidates still in that do not trail() the leader, after
+    the rounds `contest` has run (`plan.first_round` episodes each, then ROUND per round)."""
+    ranked = contest.ranked()
+    lead, runs = contest.score(ranked[0]), plan.first_round + ROUND * (contest.round - 1)
+    return [i for i in ranked if not trails(lead, contest.score(i), runs)]
 
 
 def trails(lead, wins, runs):
@@ -141,6 +159,12 @@ def candidates(plan: Plan) -> tuple[dict[str, np.ndarray], list[str]]:
     order = [arm for arm in arms for _ in range(plan.first_round)]
     rng.shuffle(order)
     return arms, order
+
+
+def is_candidate(name: object) -> bool:
+    """Whether `name` is named as `candidates` names a candidate: its ticket id, 12 lowercase hex
+    digits."""
+    return isinstance(name, str) and re.fullmatch("[0-9a-f]{12}", name) is not None
 
 
 def next_episodes(plan: Plan, replayed: Race) -> tuple[str, list[str]]:

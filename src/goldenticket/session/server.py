@@ -32,7 +32,8 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from goldenticket.errors import OptionError, UserError
-from goldenticket.session.store import ScoreConflict, Session, StoreLost
+from goldenticket.session.folder import ScoreConflict, Session
+from goldenticket.session.store import StoreLost
 
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 ANY_HOST = ("0.0.0.0", "::")

@@ -1,15 +1,15 @@
-"""A real-robot search session scored by a person, kept in SQLite (`session.sqlite`).
+"""A session's SQLite file (`session.sqlite`): the plan, the candidate tickets' noise, and one row
+per planned episode with its arm, score, note, scene id, time and place in the order of entry.
 
-Every score is written the moment it is entered; only the due episode (the first unscored one)
-can be scored, and what is planned next is a function of the seed and the scores (`race`), so a
-restart resumes where it stopped. The files beside the store (`derived`: the finalists'
-tickets, and once complete summary.json and verdict.png) are brought in line with it whenever
-the session is opened or asked what is due.
+Rows in and out, nothing decided here: what is due is `planner`'s. Every write is one transaction
+locked from its first read (BEGIN IMMEDIATE), on a connection in WAL mode with synchronous FULL,
+so several processes can share the file and `kill -9` loses nothing committed.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import sqlite3
 import time
@@ -20,20 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from goldenticket.errors import UserError
-from goldenticket.session.derived import remove_verdict, save_tickets, save_verdict
-from goldenticket.session.episode import NextEpisode
-from goldenticket.session.race import BASE, Plan, Race, candidates, next_episodes, race
-from goldenticket.session.verdict import (
-    Confirmed,
-    Pairs,
-    SessionVerdict,
-    confirm_pairs,
-    fixed_verdict,
-    sequential_test,
-    sequential_verdict,
-)
-from goldenticket.stats import Sequential
-from goldenticket.tickets import Ticket, TicketRecord
+from goldenticket.session.race import BASE, Plan, is_candidate
+from goldenticket.session.verdict import Confirmed
 
 FILE = "session.sqlite"
 _SCHEMA = """
@@ -44,251 +32,55 @@ CREATE TABLE episodes (
     success INTEGER, note TEXT, scene TEXT, scored_at REAL, entry INTEGER UNIQUE
 );
 """
-
-
-class ScoreConflict(UserError):
-    """A score for an episode scored already or not yet due, or an undo of an episode that is
-    not the last one scored; `details` names the due or the last scored episode."""
-
-    def __init__(self, message: str, **details: int | None):
-        super().__init__(message)
-        self.details = details
+_COLUMNS = ("episode", "phase", "arm", "success", "note", "scene", "scored_at", "entry")
 
 
 class StoreLost(UserError):
     """session.sqlite was deleted or replaced while open: nothing more could be saved."""
 
 
-class Session:
-    """One session folder. Every method is a short transaction, so several processes (a server,
-    a terminal scorer, the robot's Python loop) can share it."""
+class Store:
+    """One open session.sqlite: its `plan`, its `candidates` (ticket ids, in their order) and its
+    episodes. It refuses to go on once the file is no longer the one it opened."""
 
     def __init__(self, folder: str | Path):
         self.path = Path(folder) / FILE
         if not self.path.is_file():
             raise UserError(f"{folder}: no session here (create one with `goldenticket session new`)")
         self._file = _identity(self.path)  # before connecting: a file swapped meanwhile is refused
-        self._con = _connect(self.path)
+        self.con = _connect(self.path)
         try:
-            fields = json.loads(self._one("SELECT value FROM plan")[0])
-            fields = {"stopping": "fixed", "alpha": 0.05} | fields  # planned before sequential stopping
-            self.plan = Plan(**{**fields, "noise_shape": tuple(fields["noise_shape"])})
-            _number_old_scores(self._con)
+            self.plan = _read_plan(self.con)
+            _number_old_scores(self.con)
+            self.candidates = _checked_candidates(self.con, self.plan)
         except (sqlite3.DatabaseError, TypeError, ValueError, KeyError):
             raise UserError(f"{self.path}: not a goldenticket session, or damaged") from None
-        self.name = self.path.parent.resolve().name
-        self._refresh()
 
-    @classmethod
-    def new(cls, folder: str | Path, plan: Plan) -> Session:
-        """Plan the first search round and write it; refuses a folder that holds a session already."""
+    @staticmethod
+    def create(folder: str | Path, plan: Plan, noise: dict[str, np.ndarray], first_round: list[str]) -> None:
+        """Write a new session.sqlite in `folder`: the plan, the candidates' noise by ticket id, the
+        base, and the first round's search episodes (their arms, in order)."""
         path = Path(folder) / FILE
-        if path.exists():
-            raise UserError(f"{path} exists: a session is already planned there (serve or score it)")
         path.parent.mkdir(parents=True, exist_ok=True)
-        arms, order = candidates(plan)
         con = _connect(path)
         with con:
             con.executescript(_SCHEMA)
             con.execute("INSERT INTO plan VALUES (0, ?)", (json.dumps(plan.__dict__),))
-            con.executemany("INSERT INTO arms VALUES (?, ?)", [(a, n.tobytes()) for a, n in arms.items()])
+            con.executemany("INSERT INTO arms VALUES (?, ?)", [(a, n.tobytes()) for a, n in noise.items()])
             con.execute("INSERT INTO arms VALUES (?, NULL)", (BASE,))
-            con.executemany("INSERT INTO episodes (episode, phase, arm) VALUES (?, 'search', ?)",
-                            list(enumerate(order)))
+            _insert_episodes(con, 0, "search", first_round)
         con.close()
-        return cls(folder)
-
-    def next(self) -> NextEpisode | None:
-        """The due episode (planning the next round or the confirm phase once the last is scored),
-        or None when the session is complete."""
-        due = self._refresh()["due"]
-        return None if due is None else self.episode(due)
-
-    def episode(self, episode: int) -> NextEpisode:
-        """What the robot runs for one planned episode."""
-        arm = self._one("SELECT arm FROM episodes WHERE episode = ?", (episode,))[0]
-        if arm == BASE:
-            return NextEpisode(episode, BASE, None, [self.plan.seed, episode], self.plan.noise_shape)
-        return NextEpisode(episode, arm, self._noise(arm), None, self.plan.noise_shape)
-
-    def score(self, episode: int, success: bool, note: str = "", scene: str | None = None) -> None:
-        """Record the due episode's outcome, committed at once; ScoreConflict (naming the due
-        episode) for any other."""
-        self._check_planned(episode)
-        self._plan_next_if_due()
-        with self._transaction() as con:
-            due = self._due()
-            if episode != due:
-                scored = self._one("SELECT success IS NOT NULL FROM episodes WHERE episode = ?", (episode,))
-                why = "scored already" if scored and scored[0] else "not due"
-                then = "the session is complete" if due is None else f"the due episode is {due}"
-                raise ScoreConflict(f"episode {episode} is {why}; {then}", due=due)
-            con.execute("UPDATE episodes SET success = ?, note = ?, scene = ?, scored_at = ?, "
-                        "entry = (SELECT COALESCE(MAX(entry), 0) + 1 FROM episodes) WHERE episode = ?",
-                        (int(bool(success)), note, scene, time.time(), episode))
-
-    def undo(self, episode: int) -> None:
-        """Unscore `episode`, which must be the last score entered (and drop the unstarted rounds
-        planned from it); ScoreConflict (naming the last scored episode) otherwise."""
-        self._check_planned(episode)
-        with self._transaction() as con:
-            last = self._last_scored()
-            if episode != last:
-                raise ScoreConflict(f"episode {episode} is not the last one scored; that is {last}",
-                                    last_scored=last)
-            later = [end for end in self._race().ends if end > episode]  # rounds planned from its score
-            con.execute("UPDATE episodes SET success = NULL, note = NULL, scene = NULL, scored_at = NULL, "
-                        "entry = NULL WHERE episode = ?", (episode,))
-            if later:
-                con.execute("DELETE FROM episodes WHERE episode >= ?", (later[0],))
-
-    def status(self) -> dict:
-        """Scored episodes and the most the session may run (`total`), those planned so far, the
-        due and the last scored episode, the stopping rule, what is due in words (`stage`, never
-        the arm), and once the session is complete its `verdict` (a SessionVerdict)."""
-        return self._refresh()
-
-    def verdict(self) -> SessionVerdict:
-        """The confirm phase's success per arm with Wilson intervals, and each finalist's one-sided
-        p-value against the base. Fixed: Holm-adjusted over the two finalists, from a paired exact
-        test when scene ids pair every finalist episode with a base episode, else Fisher's exact
-        test (unpaired). Sequential: the sequential sign test on the pairs, and when and why the
-        session stopped (`stopping`)."""
-        status = self.status()
-        if "verdict" in status:
-            return status["verdict"]
-        raise UserError(f"the session is not finished: {status['scored']} of at most {status['total']} "
-                        "episodes scored")
-
-    def scores(self) -> list[dict]:
-        """Every planned episode with its score so far and its place in the order of entry (arm
-        names included: for the record, not for the operator's screen)."""
-        self._refresh()
-        cols = ("episode", "phase", "arm", "success", "note", "scene", "scored_at", "entry")
-        return [dict(zip(cols, r, strict=True)) for r in
-                self._con.execute(f"SELECT {', '.join(cols)} FROM episodes ORDER BY episode")]
-
-    def _refresh(self) -> dict:
-        """Plan the next round or the confirm phase if due, bring the derived files in line with
-        the store, and return the status."""
-        self._check_store()
-        self._plan_next_if_due()
-        save_tickets(self.path.parent / "tickets", self._finalists(), self._ticket)
-        status = self._status()
-        self._save_verdict(status.get("verdict"))
-        return status
-
-    def _status(self) -> dict:
-        scored, planned = self._one("SELECT COUNT(success), COUNT(*) FROM episodes")
-        due, confirm = self._due(), self._confirm_start()
-        status = {"scored": scored, "total": self.plan.episodes, "planned": planned,
-                  "phase": "search" if confirm is None else "confirm", "due": due,
-                  "last_scored": self._last_scored(), "stopping": self.plan.stopping,
-                  "stage": self._stage(due)}
-        if due is None and confirm is not None:
-            status["verdict"] = self._verdict()
-        return status
-
-    def _stage(self, due: int | None) -> str:
-        """What the due episode is, in words for the operator (never its arm)."""
-        if due is None:
-            return "complete"
-        confirm = self._confirm_start()
-        if confirm is None and self.plan.stopping == "fixed":
-            return "search phase"
-        if confirm is None:
-            search, ends = self._search(), self._race().ends
-            round_ = sum(end <= due for end in ends)
-            left = len({arm for arm, _ in search[ends[round_ - 1] if round_ else 0:ends[round_]]})
-            return f"search phase, round {round_ + 1}, {left} tickets left"
-        if self.plan.stopping == "fixed":
-            return "confirm phase"
-        pair, run = divmod(due - confirm, 2)
-        scene = "the same scene as run 1" if run else "set up a new scene"
-        return f"confirm phase, pair {pair + 1} of at most {self.plan.confirm}, run {run + 1} of 2: {scene}"
-
-    def _verdict(self) -> SessionVerdict:
-        if self.plan.stopping == "fixed":
-            return fixed_verdict(self.plan, self._confirmed())
-        scored, stopped_at = self._one("SELECT COUNT(success), MAX(scored_at) FROM episodes")
-        return sequential_verdict(self.plan, self._pairs(), scored, stopped_at)
-
-    def _test(self) -> Sequential | None:
-        """The sequential sign test on the confirm pairs scored so far; None for a fixed session."""
-        return None if self.plan.stopping == "fixed" else sequential_test(self.plan, self._pairs())
-
-    def _pairs(self) -> Pairs:
-        return confirm_pairs(self._confirmed(), next(iter(self._finalists()), None))
-
-    def _confirmed(self) -> Confirmed:
-        """The scored confirm episodes' arm, outcome and scene, in order."""
-        return [(arm, bool(success), scene) for arm, success, scene in self._con.execute(
-            "SELECT arm, success, scene FROM episodes WHERE phase = 'confirm' AND success IS NOT NULL "
-            "ORDER BY episode")]
-
-    def _plan_next_if_due(self) -> None:
-        if not self._round_due():
-            return
-        with self._transaction() as con:
-            if not self._round_due():  # another process planned it meanwhile
-                return
-            planned, (phase, arms) = len(self._search()), next_episodes(self.plan, self._race())
-            con.executemany("INSERT INTO episodes (episode, phase, arm) VALUES (?, ?, ?)",
-                            [(planned + i, phase, a) for i, a in enumerate(arms)])
-
-    def _round_due(self) -> bool:
-        """Whether every planned episode is scored and the confirm phase not planned yet."""
-        scored, planned, confirm = self._one("SELECT COUNT(success), COUNT(*), SUM(phase = 'confirm') "
-                                             "FROM episodes")
-        return scored == planned and not confirm
-
-    def _race(self) -> Race:
-        query = "SELECT arm FROM arms WHERE arm != ? ORDER BY rowid"
-        return race(self.plan, [a for (a,) in self._con.execute(query, (BASE,))], self._search())
-
-    def _search(self) -> list[tuple[str, bool | None]]:
-        """Every planned search episode's arm and outcome (None: not scored yet), in order."""
-        return [(arm, None if success is None else bool(success)) for arm, success in self._con.execute(
-            "SELECT arm, success FROM episodes WHERE phase = 'search' ORDER BY episode")]
-
-    def _confirm_start(self) -> int | None:
-        """The first confirm episode; None before the confirm phase is planned."""
-        return self._one("SELECT MIN(episode) FROM episodes WHERE phase = 'confirm'")[0]
-
-    def _search_record(self) -> dict[str, tuple[int, int]]:
-        """Search successes and scored episodes per candidate, in candidate order."""
-        return {arm: (int(won or 0), n) for arm, won, n in self._con.execute(
-            "SELECT arms.arm, SUM(success), COUNT(success) FROM arms JOIN episodes USING (arm) "
-            "WHERE phase = 'search' GROUP BY arms.arm ORDER BY arms.rowid")}
-
-    def _finalists(self) -> list[str]:
-        return [a for (a,) in self._con.execute("SELECT DISTINCT arm FROM episodes WHERE phase = 'confirm' "
-                                                "AND arm != ? ORDER BY arm", (BASE,))]
-
-    def _ticket(self, arm: str) -> Ticket:
-        """A finalist as a ticket for the policy, with its search record."""
-        won, episodes = self._search_record()[arm]
-        record = TicketRecord(policy=self.plan.policy, policy_fingerprint=self.plan.policy_fingerprint,
-                              extra={"session_search": {"successes": won, "episodes": episodes}})
-        return Ticket(self._noise(arm), record)
-
-    def _save_verdict(self, complete: SessionVerdict | None) -> None:
-        if complete is None:
-            remove_verdict(self.path.parent)
-        else:
-            save_verdict(self.path.parent, self.name, self.plan, complete, self._search_record(),
-                         self._finalists())
 
     @contextmanager
-    def _transaction(self) -> Iterator[sqlite3.Connection]:
+    def transaction(self) -> Iterator[None]:
         """One write transaction, locked from its first read (BEGIN IMMEDIATE): no other process
         writes between what it reads and what it writes."""
-        self._check_store()
-        self._con.execute("BEGIN IMMEDIATE")
-        with self._con:
-            yield self._con
+        self.check()
+        self.con.execute("BEGIN IMMEDIATE")
+        with self.con:
+            yield
 
-    def _check_store(self) -> None:
+    def check(self) -> None:
         """StoreLost if session.sqlite is no longer the file opened: scores would vanish with it."""
         try:
             same = _identity(self.path) == self._file
@@ -298,32 +90,109 @@ class Session:
             raise StoreLost(f"{self.path} was deleted or replaced while in use: scores can no longer be "
                             "saved (put the file back, or restart from a copy)")
 
-    def _check_planned(self, episode: int) -> None:
-        if not 0 <= episode < self.plan.episodes:
-            raise UserError(f"episode {episode} is not in the plan (episodes 0 to {self.plan.episodes - 1})")
+    def arm(self, episode: int) -> str:
+        return self._one("SELECT arm FROM episodes WHERE episode = ?", (episode,))[0]
 
-    def _due(self) -> int | None:
-        """The first unscored episode, unless the sequential test has decided."""
-        due = self._one("SELECT MIN(episode) FROM episodes WHERE success IS NULL")[0]
-        if due is not None and self._confirm_start() is not None and (test := self._test()) and test.decision:
-            return None
-        return due
-
-    def _last_scored(self) -> int | None:
-        row = self._one("SELECT episode FROM episodes WHERE entry IS NOT NULL ORDER BY entry DESC LIMIT 1")
-        return None if row is None else row[0]
-
-    def _noise(self, arm: str) -> np.ndarray:
+    def noise(self, arm: str) -> np.ndarray:
+        """A candidate's (H, A) noise."""
         blob = self._one("SELECT noise FROM arms WHERE arm = ?", (arm,))[0]
         return np.frombuffer(blob, dtype=np.float32).reshape(self.plan.noise_shape).copy()
 
+    def tally(self) -> tuple[int, int, float | None]:
+        """Episodes scored, episodes planned, and when the last score was entered."""
+        return self._one("SELECT COUNT(success), COUNT(*), MAX(scored_at) FROM episodes")
+
+    def first_unscored(self) -> int | None:
+        return self._one("SELECT MIN(episode) FROM episodes WHERE success IS NULL")[0]
+
+    def is_scored(self, episode: int) -> bool:
+        row = self._one("SELECT success IS NOT NULL FROM episodes WHERE episode = ?", (episode,))
+        return bool(row and row[0])
+
+    def confirm_start(self) -> int | None:
+        """The first confirm episode; None before the confirm phase is planned."""
+        return self._one("SELECT MIN(episode) FROM episodes WHERE phase = 'confirm'")[0]
+
+    def last_scored(self) -> int | None:
+        """The episode whose score was entered last (by entry sequence, not by the clock)."""
+        row = self._one("SELECT episode FROM episodes WHERE entry IS NOT NULL ORDER BY entry DESC LIMIT 1")
+        return None if row is None else row[0]
+
+    def search(self) -> list[tuple[str, bool | None]]:
+        """Every planned search episode's arm and outcome (None: not scored yet), in order."""
+        return [(arm, None if success is None else bool(success)) for arm, success in self.con.execute(
+            "SELECT arm, success FROM episodes WHERE phase = 'search' ORDER BY episode")]
+
+    def confirmed(self) -> Confirmed:
+        """The scored confirm episodes' arm, outcome and scene, in order."""
+        return [(arm, bool(success), scene) for arm, success, scene in self.con.execute(
+            "SELECT arm, success, scene FROM episodes WHERE phase = 'confirm' AND success IS NOT NULL "
+            "ORDER BY episode")]
+
+    def finalists(self) -> list[str]:
+        """The candidates planned in the confirm phase."""
+        return [a for (a,) in self.con.execute("SELECT DISTINCT arm FROM episodes WHERE phase = 'confirm' "
+                                               "AND arm != ? ORDER BY arm", (BASE,))]
+
+    def search_record(self) -> dict[str, tuple[int, int]]:
+        """Search successes and scored episodes per candidate, in candidate order."""
+        return {arm: (int(won or 0), n) for arm, won, n in self.con.execute(
+            "SELECT arms.arm, SUM(success), COUNT(success) FROM arms JOIN episodes USING (arm) "
+            "WHERE phase = 'search' GROUP BY arms.arm ORDER BY arms.rowid")}
+
+    def rows(self) -> list[dict]:
+        """Every planned episode's row, in order."""
+        return [dict(zip(_COLUMNS, r, strict=True)) for r in
+                self.con.execute(f"SELECT {', '.join(_COLUMNS)} FROM episodes ORDER BY episode")]
+
+    def plan_episodes(self, first: int, phase: str, arms: list[str]) -> None:
+        """Plan episodes `first`, `first` + 1, ... of `phase` with `arms`, in order."""
+        _insert_episodes(self.con, first, phase, arms)
+
+    def enter_score(self, episode: int, success: bool, note: str, scene: str | None) -> None:
+        """Score `episode` now, next in the order of entry."""
+        self.con.execute("UPDATE episodes SET success = ?, note = ?, scene = ?, scored_at = ?, "
+                         "entry = (SELECT COALESCE(MAX(entry), 0) + 1 FROM episodes) WHERE episode = ?",
+                         (int(bool(success)), note, scene, time.time(), episode))
+
+    def unscore(self, episode: int) -> None:
+        self.con.execute("UPDATE episodes SET success = NULL, note = NULL, scene = NULL, scored_at = NULL, "
+                         "entry = NULL WHERE episode = ?", (episode,))
+
+    def drop_from(self, episode: int) -> None:
+        """Unplan `episode` and every episode after it."""
+        self.con.execute("DELETE FROM episodes WHERE episode >= ?", (episode,))
+
     def _one(self, sql: str, args: tuple = ()):
-        return self._con.execute(sql, args).fetchone()
+        return self.con.execute(sql, args).fetchone()
 
 
 def _identity(path: Path) -> tuple[int, int]:
     info = os.stat(path)
     return info.st_dev, info.st_ino
+
+
+def _read_plan(con: sqlite3.Connection) -> Plan:
+    fields = json.loads(con.execute("SELECT value FROM plan").fetchone()[0])
+    fields = {"stopping": "fixed", "alpha": 0.05} | fields  # planned before sequential stopping
+    return Plan(**{**fields, "noise_shape": tuple(fields["noise_shape"])})
+
+
+def _checked_candidates(con: sqlite3.Connection, plan: Plan) -> list[str]:
+    """The candidates' names, in their order. ValueError unless every arm stored is the base (no
+    noise) or a candidate named as `race.candidates` names one, with (H, A) float32 noise, and
+    every episode's arm is one of them: a name read from the file becomes a file name in tickets/."""
+    noise = ("blob", 4 * math.prod(plan.noise_shape))
+
+    def fits(arm, stored: tuple) -> bool:
+        return stored == ("null", None) if arm == BASE else is_candidate(arm) and stored == noise
+
+    arms = {arm: (kind, size) for arm, kind, size in con.execute(
+        "SELECT arm, typeof(noise), length(noise) FROM arms ORDER BY rowid")}
+    planned = {arm for (arm,) in con.execute("SELECT DISTINCT arm FROM episodes")}
+    if not planned <= arms.keys() or not all(fits(arm, stored) for arm, stored in arms.items()):
+        raise ValueError("an arm that is neither the base nor a candidate ticket")
+    return [arm for arm in arms if arm != BASE]
 
 
 def _number_old_scores(con: sqlite3.Connection) -> None:
@@ -338,6 +207,11 @@ def _number_old_scores(con: sqlite3.Connection) -> None:
                              "ORDER BY scored_at, episode").fetchall()
         con.executemany("UPDATE episodes SET entry = ? WHERE episode = ?",
                         [(n, episode) for n, (episode,) in enumerate(scored, 1)])
+
+
+def _insert_episodes(con: sqlite3.Connection, first: int, phase: str, arms: list[str]) -> None:
+    con.executemany("INSERT INTO episodes (episode, phase, arm) VALUES (?, ?, ?)",
+                    [(first + i, phase, arm) for i, arm in enumerate(arms)])
 
 
 def _connect(path: Path) -> sqlite3.Connection:

@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 from goldenticket.errors import UserError
 from goldenticket.report import verdict_table
-from goldenticket.session.store import ScoreConflict, Session
+from goldenticket.session.folder import ScoreConflict, Session
 
 HELP = "s = success, f = failure (a note may follow: `f gripper slipped`), u = undo the last score, q = quit"
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from goldenticket.evaluation import Evaluator, adjust_for_multiplicity, judge
+from goldenticket.evaluation import ZERO, Arm, Evaluator, judge
 from goldenticket.noise import NoiseSource
 from goldenticket.objectives import OBJECTIVES
 from goldenticket.plots import front_png
@@ -48,21 +48,21 @@ def pareto_study(evaluator: Evaluator, scored: dict[str, tuple[NoiseSource, Cand
                  objectives: tuple[str, str], *, max_steps: int, heldout: Sequence[int],
                  base: NoiseSource, zero: NoiseSource, save: Callable[[Candidate, dict], str],
                  out: Path) -> ParetoFront:
-    """The front among the `scored` tickets (label -> its noise source and search candidate),
+    """The front among the `scored` tickets (ticket id -> its noise source and search candidate),
     judged on `heldout` beside base and zero; `save(candidate, front_metadata)` writes a front
     ticket and returns its path. Writes `front.png` into `out`."""
     labels = list(scored)
     searched = evaluator.run([(label, source, c.seeds) for label, (source, c) in scored.items()])
     points = [_scores(objectives, runs, max_steps) for runs in searched]
     front = [labels[i] for i in non_dominated([tuple(p.values()) for p in points])]
-    arms = {"base": base, "zero": zero} | {label: scored[label][0] for label in front}
-    judged = judge(evaluator, {k: v for k, v in arms.items() if k != "base"}, heldout, base)
-    adjust_for_multiplicity(judged, front)
-    rows = {label: FrontArm(judged[label].row(), _scores(objectives, judged[label].results, max_steps))
-            for label in arms}
+    verdict = judge(evaluator, {ZERO: zero} | {Arm.ticket(label): scored[label][0] for label in front},
+                    heldout, base)
+    rows = {arm: FrontArm(row, _scores(objectives, verdict.arms[arm].results, max_steps))
+            for arm, row in verdict.rows.items()}
     for label in front:
-        metadata = {"objectives": list(objectives), "heldout": rows[label].to_dict()}
-        rows[label] = replace(rows[label], ticket_path=save(scored[label][1], metadata))
+        arm = Arm.ticket(label)
+        metadata = {"objectives": list(objectives), "heldout": rows[arm].to_dict()}
+        rows[arm] = replace(rows[arm], ticket_path=save(scored[label][1], metadata))
     search = tuple((label, p, label in front) for label, p in zip(labels, points, strict=True))
     study = ParetoFront(objectives, (heldout[0], heldout[-1]), search, rows)
     front_png(study, out / "front.png")

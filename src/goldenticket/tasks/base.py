@@ -1,4 +1,5 @@
-"""The task contract: seeded envs, observation digests, quiet env creation."""
+"""The task contract: seeded envs, observation digests (and traces of seeded episodes), quiet env
+creation."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ import hashlib
 import json
 import logging
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 import numpy as np
 
 from goldenticket.errors import UserError
+from goldenticket.factories import call_users
 
 
 def observation_digest(obs) -> str:
@@ -34,31 +36,51 @@ def stack(observations: list, join: Callable = np.stack) -> np.ndarray | dict[st
     return join(observations)
 
 
-CHECK_SEEDS, CHECK_STEPS = (0, 1_000_000), 3  # a search seed and a held-out one, a few actions each
+Episode = list[dict[str, str]]  # its observations' digests by key ("" for an array), the reset's first
+FIRST_ENV = "in one env"  # where a trace's first episodes ran: the others must repeat them
 
 
-def check_repeatable(task) -> None:
-    """UserError unless the same seed and actions give the same observations: again after another
-    episode in the same env, and in another process (the way workers rebuild the task)."""
-    from goldenticket.factories import in_another_process
-
-    first, once = episode_digests(task), CHECK_STEPS + 1
-    elsewhere = in_another_process(episode_digests, task, what=f"task {task.name!r}")
-    if first[:once] != first[-once:] or elsewhere != first:
-        raise UserError(f"task {task.name!r}: the same seed and actions gave different observations; its "
-                        "initial states are not repeatable on this machine")
+def trace(task, seeds: Sequence[int], steps: int, env: Env | None = None) -> dict[str, list[Episode]]:
+    """The seeds' `episodes` by where they ran in this process: in one env (`env`, else a new one),
+    then the first seed's again in it after them and in a new env (a reset can cost seconds: LIBERO
+    rebuilds its scene); what `goldenticket.checks` compares."""
+    env = task.make_env() if env is None else env
+    return {FIRST_ENV: episodes(task, seeds, steps, env),
+            "in the same env after other episodes": episodes(task, seeds[:1], steps, env),
+            "in a new env": episodes(task, seeds[:1], steps)}
 
 
-def episode_digests(task) -> list[str]:
-    """Digests of CHECK_SEEDS' episodes through a few fixed actions (in [-1, 1], `task.action_dim` of
-    them) in one env, then of the first seed's again: an env whose state leaks across resets differs."""
-    env = task.make_env()
-    actions = np.random.default_rng(0).uniform(-1, 1, (CHECK_STEPS, task.action_dim))
-    digests = []
-    for seed in (*CHECK_SEEDS, CHECK_SEEDS[0]):
-        digests.append(observation_digest(env.reset(seed)))
-        digests += [observation_digest(env.step(action)[0]) for action in actions]
-    return digests
+def episodes(task, seeds: Sequence[int], steps: int, env: Env | None = None) -> list[Episode]:
+    """Each seed's episode through `steps` fixed actions, one after another in one env (`env`, else a
+    new one)."""
+    env = task.make_env() if env is None else env
+    return [episode(task, env, seed, steps) for seed in seeds]
+
+
+def episode(task, env: Env, seed: int, steps: int) -> Episode:
+    """`seed`'s episode through `steps` fixed actions, until the env says done or succeeded; the env's
+    failure is one line."""
+    observations = [call_users(env.reset, f"task {task.name!r}: reset()", seed)]
+    for action in fixed_actions(task, env, steps):
+        obs, success, done = call_users(env.step, f"task {task.name!r}: step()", action)
+        observations.append(obs)
+        if success or done:
+            break
+    return [{key: observation_digest(value) for key, value in obs.items()} if isinstance(obs, dict)
+            else {"": observation_digest(obs)} for obs in observations]
+
+
+def fixed_actions(task, env: Env, steps: int) -> list:
+    """`steps` actions, the same in every process: uniform in [-1, 1] where the task names its action
+    size (`action_dim`), else drawn from the env's action space (a Gymnasium env's), seeded."""
+    size = getattr(task, "action_dim", None)
+    if size is not None:
+        return list(np.random.default_rng(0).uniform(-1, 1, (steps, size)))
+    space = getattr(env, "action_space", None)
+    if space is None:
+        raise UserError(f"task {task.name!r}: its env has no action_space to draw actions from")
+    space.seed(0)
+    return [space.sample() for _ in range(steps)]
 
 
 @functools.cache
@@ -93,14 +115,15 @@ class Env(Protocol):
 
 
 class Task(Protocol):
-    """Builds envs; worker processes receive the task pickled; `name` is what tickets record."""
+    """Builds envs; worker processes receive the task pickled; `name` is what tickets record.
+    `goldenticket.checks` checks every task's envs the same way before a run."""
 
     name: str
     max_steps: int
     # Optional: instruction: str | None, what a language policy (a VLA) is told to do, passed as
     # LeRobot passes it ("task"); Meta-World tasks have LeRobot's description of their env.
+    # Optional: action_dim: int, the numbers of an action (else the env's action_space says).
+    # Optional: note() -> None, says once (on stderr) what on this machine makes the task's numbers
+    # differ from recorded ones (robomimic's: OpenBLAS's kernels); the checks call it.
 
     def make_env(self) -> Env: ...
-
-    def check(self) -> None:
-        """UserError if the same seed does not give the same initial state."""

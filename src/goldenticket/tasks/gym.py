@@ -8,19 +8,18 @@ on success, `terminated`, `truncated` or the task's `max_steps`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
 from goldenticket.errors import UserError
-from goldenticket.factories import build, call_users, import_name, in_another_process, resolve
-from goldenticket.seeds import SEED_SETS
-from goldenticket.tasks.base import observation_digest, quiet_env_warnings
+from goldenticket.factories import build, import_name, is_import_string, resolve
+from goldenticket.tasks.base import quiet_env_warnings
+from goldenticket.tasks.registry import task_family
 
 SUCCESS_KEYS = ("success", "is_success")
-CHECK_SEEDS = (SEED_SETS["search"].start, SEED_SETS["heldout"].start)
 
 
 class GymEnv:
@@ -51,6 +50,13 @@ class GymEnv:
         return bool(info[key])
 
 
+def is_factory(task: str | Callable) -> bool:
+    """A callable, or an import string `package.module:factory`."""
+    return callable(task) or is_import_string(task)
+
+
+@task_family("Gymnasium", matches=is_factory,
+             examples=lambda: "package.module:factory for a Gymnasium env of yours", factories=True)
 @dataclass(frozen=True)
 class GymTask:
     """A Gymnasium env built by `factory` (a callable, or an import string), episodes capped at
@@ -88,27 +94,3 @@ class GymTask:
         if isinstance(success, str):
             success = resolve(success, "success predicate")
         return GymEnv(env, self.name, success)
-
-    def check(self) -> None:
-        """Like Gymnasium's check_reset_seed_determinism: the same seed must give the same initial
-        observation twice in one env, in a new env and in another process."""
-        env = self.make_env()
-        first = initial_digests(env, CHECK_SEEDS)
-        again = [initial_digests(env, CHECK_SEEDS), initial_digests(self.make_env(), CHECK_SEEDS),
-                 self._digest_in_another_process()]
-        if any(d != first for d in again):
-            raise UserError(f"task {self.name!r}: reset(seed=s) does not fix the initial state (the "
-                            "same seed gave different observations); seed every random draw of "
-                            "reset from its seed")
-
-    def _digest_in_another_process(self) -> str:
-        return in_another_process(_initial_digest, self, what=f"task {self.name!r}")
-
-
-def _initial_digest(task: GymTask) -> list[str]:
-    return initial_digests(task.make_env(), CHECK_SEEDS)
-
-
-def initial_digests(env: GymEnv, seeds: Sequence[int]) -> list[str]:
-    """The digest of each initial observation after reset(seed); the env's failure is one line."""
-    return [observation_digest(call_users(env.reset, f"task {env.task!r}: reset()", seed)) for seed in seeds]

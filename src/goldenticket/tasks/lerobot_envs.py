@@ -33,8 +33,9 @@ import numpy as np
 
 from goldenticket.errors import UserError
 from goldenticket.files import write_atomic
-from goldenticket.tasks.base import check_repeatable, quiet_env_warnings, quiet_robosuite_logs
+from goldenticket.tasks.base import quiet_env_warnings, quiet_robosuite_logs
 from goldenticket.tasks.gym import GymEnv
+from goldenticket.tasks.registry import task_family
 
 SUITES = {"spatial": 10, "object": 10, "goal": 10, "10": 10, "90": 90}  # LIBERO's suites: their task counts
 LIBERO_PREFIXES = ("libero/", "libero-listed/")
@@ -50,6 +51,13 @@ def is_lerobot_env_task(name: str) -> bool:
     return name in GYM_ENVS or name.startswith(LIBERO_PREFIXES)
 
 
+def some_env_names() -> str:
+    """For the unknown-task line."""
+    libero = [f"{prefix}<suite>/<task id>" for prefix in LIBERO_PREFIXES]
+    return "LeRobot's envs " + ", ".join(libero + list(GYM_ENVS))
+
+
+@task_family("LeRobot", matches=is_lerobot_env_task, examples=some_env_names)
 @dataclass(frozen=True)
 class LeRobotEnvTask:
     """One of LeRobot's simulated envs (the module docstring names them); `max_steps` defaults to
@@ -126,9 +134,19 @@ class LeRobotEnvTask:
     def action_dim(self) -> int:
         return self.config.features["action"].shape[0]
 
-    def check(self) -> None:
-        """The same seed and actions must give the same observations (`base.check_repeatable`)."""
-        check_repeatable(self)
+    @property
+    def observation_shapes(self) -> dict[str, tuple[int, ...]]:
+        """The observations a policy is given, keyed as LeRobot's `preprocess_observation` keys them,
+        with their shapes (frames channel first), read from LeRobot's env config: no env is built."""
+        from lerobot.envs.utils import env_to_policy_features
+        from lerobot.utils.constants import ACTION, OBS_STATE
+
+        features = env_to_policy_features(self.config)
+        shapes = {key: tuple(f.shape) for key, f in features.items() if key != ACTION}
+        if self.is_libero:  # one state, as LeRobot's LIBERO processor makes it of the robot's (LiberoTaskEnv)
+            shapes = {key: shape for key, shape in shapes.items() if not key.startswith(OBS_STATE)}
+            shapes[OBS_STATE] = (8,)
+        return shapes
 
 
 def libero_suite(name: str) -> tuple[str, int]:

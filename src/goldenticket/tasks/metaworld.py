@@ -15,6 +15,9 @@ import numpy as np
 
 from goldenticket.tasks import metaworld_fast
 from goldenticket.tasks.base import quiet_env_warnings
+from goldenticket.tasks.registry import task_family
+
+PREFIX = "metaworld/"
 
 
 @cache
@@ -43,7 +46,17 @@ def instructions() -> dict[str, str]:
 
 
 def task_names() -> list[str]:
-    return sorted(f"metaworld/{name}" for name in _env_classes())
+    return sorted(PREFIX + name for name in _env_classes())
+
+
+def is_metaworld_task(name: str) -> bool:
+    """The prefix first: other names import no Meta-World."""
+    return name.startswith(PREFIX) and name in task_names()
+
+
+def some_task_names() -> str:
+    """The pick and reach tasks, for the unknown-task line."""
+    return ", ".join(name for name in task_names() if "pick" in name or "reach" in name)
 
 
 STATE_DIM = 39  # Meta-World's goal-observable state vector
@@ -256,6 +269,7 @@ def _configured(env_name: str):
     return env
 
 
+@task_family("Meta-World", matches=is_metaworld_task, examples=some_task_names)
 @dataclass(frozen=True)
 class MetaWorldTask:
     """A Meta-World v3 task, e.g. `metaworld/pick-place-v3`; episodes end at success."""
@@ -276,6 +290,3 @@ class MetaWorldTask:
 
     def make_env(self) -> MetaWorldEnv:
         return MetaWorldEnv(self.env_name)
-
-    def check(self) -> None:
-        """Nothing to check: reset(seed) reseeds the env's generator (tests/test_tasks.py)."""

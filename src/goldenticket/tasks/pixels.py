@@ -17,8 +17,8 @@ from functools import cache
 import numpy as np
 
 from goldenticket.errors import UserError
-from goldenticket.tasks.base import observation_digest
 from goldenticket.tasks.metaworld import MetaWorldEnv, MetaWorldTask, shared_host, task_names
+from goldenticket.tasks.registry import task_family
 
 PREFIX = "metaworld-pixels/"
 SIZE = 64  # frame height and width
@@ -36,6 +36,11 @@ CAMERA = {"lookat": (0.0, 0.68, 0.05), "distance": 0.75, "azimuth": 90.0, "eleva
 
 def pixel_task_names() -> list[str]:
     return [PREFIX + name.split("/", 1)[1] for name in task_names()]
+
+
+def is_pixels_task(name: str) -> bool:
+    """The prefix first: other names import no Meta-World."""
+    return name.startswith(PREFIX) and name in pixel_task_names()
 
 
 class PixelsEnv:
@@ -111,6 +116,8 @@ def _renderer(env_name: str) -> _Camera:
     return _Camera(shared_host(env_name).env.model)
 
 
+@task_family("Meta-World through a camera", matches=is_pixels_task,
+             examples=lambda: f"{PREFIX}<env-name> seen through a camera")
 @dataclass(frozen=True)
 class PixelsTask(MetaWorldTask):
     """`metaworld-pixels/<env>`: a Meta-World task observed through a 64 x 64 camera."""
@@ -123,27 +130,3 @@ class PixelsTask(MetaWorldTask):
 
     def make_env(self) -> PixelsEnv:
         return PixelsEnv(self.env_name)
-
-    def check(self) -> None:
-        """The same seed and actions must draw the same frames: twice in one env, in a new env and
-        in another process (a renderer whose frames vary would make every number unrepeatable)."""
-        from goldenticket.factories import in_another_process
-
-        first = frame_digests(self)
-        again = [frame_digests(self), in_another_process(frame_digests, self, what=f"task {self.name!r}")]
-        if any(d != first for d in again):
-            raise UserError(f"task {self.name!r}: the renderer drew different frames for the same seed "
-                            "and actions; pixels are not repeatable on this machine")
-
-
-CHECK_SEEDS, CHECK_STEPS = (0, 1), 5
-
-
-def frame_digests(task: PixelsTask) -> list[str]:
-    """Digests of the frames of a few seeded episodes, from reset through a few fixed actions."""
-    env, digests = task.make_env(), []
-    actions = np.random.default_rng(0).uniform(-1, 1, (CHECK_STEPS, task.action_dim))
-    for seed in CHECK_SEEDS:
-        digests.append(observation_digest(env.reset(seed)))
-        digests += [observation_digest(env.step(a)[0]) for a in actions]
-    return digests

@@ -1,42 +1,83 @@
-"""Tasks by name: built-in Meta-World tasks, or any Gymnasium env by factory or import string."""
+"""Tasks by name: each task family (Meta-World, its camera tasks, LeRobot's envs, robomimic, the
+user's own Gymnasium envs) registers itself here when its module is imported (`tasks/__init__.py`
+imports them all), and `get_task` looks a name up among them."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from goldenticket.errors import OptionError, UserError
-from goldenticket.factories import is_import_string
-from goldenticket.tasks.gym import GymTask
-from goldenticket.tasks.lerobot_envs import LeRobotEnvTask, is_lerobot_env_task
-from goldenticket.tasks.metaworld import MetaWorldTask, task_names
-from goldenticket.tasks.pixels import PixelsTask, pixel_task_names
-from goldenticket.tasks.robomimic import RobomimicTask
+
+if TYPE_CHECKING:
+    from goldenticket.tasks.base import Task
+
+
+@dataclass(frozen=True)
+class TaskFamily:
+    """Tasks `get_task` builds: those `matches(task)` accepts, made by `build(task, **options)`
+    (options: `max_steps`, and `success` for factories); `examples()` is what the unknown-task line
+    offers of them (called only then: it may import a simulator to list names)."""
+
+    name: str
+    matches: Callable[[str | Callable], bool]
+    build: Callable[..., Task]
+    examples: Callable[[], str]
+    # takes the user's env factories (callables, import strings): asked before the name families, even
+    # about a name; the only family a success predicate applies to; offered last ("or ...")
+    factories: bool = False
+
+
+FAMILIES: list[TaskFamily] = []  # in the order they registered: the order names are offered in
+
+
+def task_family(name: str, matches: Callable[[str | Callable], bool], examples: Callable[[], str],
+                factories: bool = False) -> Callable[[Callable[..., Task]], Callable[..., Task]]:
+    """Decorator: registers the decorated builder (a task class, usually) as the family `name`."""
+
+    def register(build: Callable[..., Task]) -> Callable[..., Task]:
+        if any(family.name == name for family in FAMILIES):
+            raise ValueError(f"task family {name!r} is already registered")
+        FAMILIES.append(TaskFamily(name, matches, build, examples, factories))
+        return build
+
+    return register
 
 
 def get_task(task: str | Callable, max_steps: int | None = None, success: Callable | str | None = None
-             ) -> MetaWorldTask | GymTask | LeRobotEnvTask | RobomimicTask:
+             ) -> Task:
     """A built-in task by name (Meta-World's, robomimic's, LeRobot's simulated envs), or a Gymnasium env
     from a factory (a callable or an import string `pkg.mod:factory`) with an optional success predicate;
     unknown names are a UserError listing a few valid ones."""
     if max_steps is not None and max_steps < 1:
         raise OptionError(f"max_steps must be >= 1, got {max_steps}", "max_steps")
-    limit = {} if max_steps is None else {"max_steps": max_steps}
-    if callable(task) or is_import_string(task):
-        return GymTask(task, success=success, **limit)
-    if success is not None:
+    family = family_of(task)
+    if success is not None and not (family and family.factories):
         raise OptionError(f"success applies to Gymnasium tasks; {task!r} has its own success signal",
                           "success")
-    if task.startswith("robomimic/"):
-        return RobomimicTask(task, **limit)
-    if is_lerobot_env_task(task):
-        return LeRobotEnvTask(task, **limit)
-    if task in pixel_task_names():
-        return PixelsTask(task, **limit)
-    if task not in task_names():
-        hint = ", ".join(n for n in task_names() if "pick" in n or "reach" in n)
-        raise UserError(f"unknown task {task!r}; tasks look like: {hint} (metaworld-pixels/<env-name> "
-                        "seen through a camera; LeRobot's envs libero/<suite>/<task id>, "
-                        "libero-listed/<suite>/<task id>, pusht, aloha/insertion, aloha/transfer-cube; "
-                        "robomimic/lift, can, square, transport; "
-                        "or package.module:factory for a Gymnasium env of yours)")
-    return MetaWorldTask(task, **limit)
+    check_task(task)
+    options = {"max_steps": max_steps, "success": success}
+    return family.build(task, **{key: value for key, value in options.items() if value is not None})
+
+
+def check_task(task: str | Callable) -> None:
+    """UserError for a task no family accepts, before any is built."""
+    if family_of(task) is None:
+        raise UserError(unknown_task(task))
+
+
+def family_of(task: str | Callable) -> TaskFamily | None:
+    """The first family that accepts `task`: factory families first, then, for a name, the others in
+    the order they registered."""
+    asked = [family for family in FAMILIES if family.factories]
+    if isinstance(task, str):
+        asked += [family for family in FAMILIES if not family.factories]
+    return next((family for family in asked if family.matches(task)), None)
+
+
+def unknown_task(task: str) -> str:
+    """The unknown-task line: the first name family's examples, then the others', then the factories'."""
+    named = [family.examples() for family in FAMILIES if not family.factories]
+    others = named[1:] + [f"or {family.examples()}" for family in FAMILIES if family.factories]
+    return f"unknown task {task!r}; tasks look like: {named[0]} ({'; '.join(others)})"

@@ -15,26 +15,22 @@ numpy < 2: README gives it a venv of its own).
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import functools
 import io
-import sys
 import warnings
 from dataclasses import dataclass
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 
 from goldenticket.errors import UserError
-from goldenticket.tasks.base import check_repeatable, quiet_robosuite_logs
+from goldenticket.kernels import note as note_kernels
+from goldenticket.tasks.base import quiet_robosuite_logs
+from goldenticket.tasks.registry import task_family
 
 INSTALL = ("pip install -e \".[robomimic]\" in a venv of its own (README, \"LeRobot, robomimic\"), "
            "for robosuite 1.5.2")
 ARM_KEYS = ("eef_pos", "eef_quat", "gripper_qpos")
-# robosuite's controller runs numpy's linear algebra, whose OpenBLAS kernels differ per CPU in the
-# last bits; the recorded robomimic numbers come from these cores' kernels (the same episodes)
-REFERENCE_KERNELS = ("Haswell", "Zen")
+PREFIX = "robomimic/"
 
 
 @dataclass(frozen=True)
@@ -54,6 +50,12 @@ SETUPS = {"robomimic/lift": Setup("Lift", 1, 400, 19), "robomimic/can": Setup("P
           "robomimic/transport": Setup("TwoArmTransport", 2, 700, 59, world_frame=True)}
 
 
+def some_task_names() -> str:
+    """For the unknown-task line: robomimic/lift, can, ..."""
+    return PREFIX + ", ".join(name.removeprefix(PREFIX) for name in SETUPS)
+
+
+@task_family("robomimic", matches=lambda name: name.startswith(PREFIX), examples=some_task_names)
 @dataclass(frozen=True)
 class RobomimicTask:
     """One of robomimic's tasks (the module docstring says how it is set up)."""
@@ -83,39 +85,9 @@ class RobomimicTask:
     def make_env(self) -> RobomimicEnv:
         return RobomimicEnv(self.setup, self.name)
 
-    def check(self) -> None:
-        """The same seed and actions must give the same observations (`base.check_repeatable`); a note
-        where OpenBLAS's kernels are not those of the recorded numbers."""
-        check_repeatable(self)
+    def note(self) -> None:
+        """A note, once, where OpenBLAS's kernels are not those of the recorded numbers."""
         note_kernels()
-
-
-@functools.cache
-def note_kernels() -> None:
-    """Say once when numpy's OpenBLAS runs other kernels than the recorded robomimic numbers did."""
-    core = openblas_kernels()
-    if core is not None and core not in REFERENCE_KERNELS:
-        print(f"goldenticket: note: numpy's OpenBLAS runs its {core} kernels here, so robosuite's controller "
-              "differs in the last bits from the recorded robomimic numbers (made with its Haswell kernels); "
-              "to reproduce them exactly, start Python with OPENBLAS_CORETYPE=Haswell (any CPU with AVX2)",
-              file=sys.stderr)
-
-
-def openblas_kernels() -> str | None:
-    """The core whose kernels numpy's OpenBLAS runs, asked of the loaded library (Linux); None where
-    it cannot be found."""
-    try:
-        maps = Path("/proc/self/maps").read_text()
-    except OSError:
-        return None
-    libraries = sorted({line.split()[-1] for line in maps.splitlines() if "openblas" in line.lower()})
-    for library in libraries:
-        for symbol in ("openblas_get_corename64_", "scipy_openblas_get_corename64_", "openblas_get_corename"):
-            function = getattr(ctypes.CDLL(library), symbol, None)
-            if function is not None:
-                function.restype = ctypes.c_char_p
-                return function().decode()
-    return None
 
 
 class RobomimicEnv:

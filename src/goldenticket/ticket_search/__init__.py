@@ -1,42 +1,25 @@
-"""Black-box search for golden tickets: pure ask/tell optimizers, the budgeted driver and its adapter
-to whatever runs episodes."""
+"""Black-box search for golden tickets: each method's settings (`methods`), pure ask/tell optimizers,
+the budgeted driver and its adapter to whatever runs episodes. A name here imports its module when it
+is first used, so that config reads the methods' settings without loading numpy."""
 
-from goldenticket.ticket_search.adapter import query_evaluator
-from goldenticket.ticket_search.driver import (
-    Candidate,
-    EpisodeOutcome,
-    SearchResult,
-    run_search,
-)
-from goldenticket.ticket_search.optimizers import (
-    CEM,
-    CMAES,
-    OPTIMIZERS,
-    CEMRacing,
-    Optimizer,
-    Query,
-    RandomSearch,
-    ZerothOrder,
-    make_optimizer,
-)
-from goldenticket.ticket_search.racing import RACE_BLOCK, Halved, Raced
+import importlib
 
-__all__ = [
-    "CEM",
-    "CMAES",
-    "OPTIMIZERS",
-    "CEMRacing",
-    "Candidate",
-    "EpisodeOutcome",
-    "Halved",
-    "Optimizer",
-    "Query",
-    "RACE_BLOCK",
-    "Raced",
-    "RandomSearch",
-    "SearchResult",
-    "ZerothOrder",
-    "make_optimizer",
-    "query_evaluator",
-    "run_search",
-]
+_MODULES = {  # each name -> the module that defines it
+    "query_evaluator": "adapter",
+    **dict.fromkeys(("Candidate", "EpisodeOutcome", "SearchResult", "run_search"), "driver"),
+    **dict.fromkeys(("METHODS", "method", "method_settings", "RandomSearchSettings", "CEMSettings",
+                     "ZerothOrderSettings", "CEMRacingSettings", "CEMBoundsSettings", "CMAESSettings",
+                     "TiledThenFullSettings", "ModelBasedSettings", "TPESettings", "GPSettings"), "methods"),
+    **dict.fromkeys(("CEM", "CMAES", "OPTIMIZERS", "CEMRacing", "RandomSearch", "ZerothOrder",
+                     "make_optimizer"), "optimizers"),
+    **dict.fromkeys(("Optimizer", "Query"), "protocol"),
+    **dict.fromkeys(("RACE_BLOCK", "Halved", "Raced"), "racing"),
+}
+__all__ = sorted(_MODULES)
+
+
+def __getattr__(name: str):
+    """`name` from its module, imported now (PEP 562)."""
+    if name not in _MODULES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_MODULES[name]}"), name)

@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from goldenticket.ticket_search.driver import EpisodeOutcome
-from goldenticket.ticket_search.optimizers import Query
+from goldenticket.ticket_search.protocol import Query
 
 # run_tickets(jobs, task): each job a (ticket, seeds) pair; returns, per job, its episodes in seed
 # order, each with `.ret` and `.success`.

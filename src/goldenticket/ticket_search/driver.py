@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from goldenticket.errors import UserError
-from goldenticket.ticket_search.optimizers import Optimizer, Query
+from goldenticket.ticket_search.protocol import Optimizer, Query
 
 
 @dataclass

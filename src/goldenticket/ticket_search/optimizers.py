@@ -1,11 +1,10 @@
 """Ask/tell black-box optimizers over one constant noise ticket (paper appendix "Search Methods").
 
 Every optimizer is pure: it proposes `Query`s and learns from their per-seed returns, with no
-I/O, no environment and no global random state. All randomness and tie-breaking is driven by
-the `rng` it was built with, so the same rng seed and the same returns give the same queries.
-Protocol: call `ask()`, evaluate every query it returned, then `tell()` all of them, in order,
-before asking again. Each method's settings, with their defaults, are its dataclass in
-`config.METHODS`; an optimizer takes that dataclass, or its fields as keywords.
+I/O, no environment and no global random state (the ask/tell protocol: `protocol.py`). All
+randomness and tie-breaking is driven by the `rng` it was built with, so the same rng seed and the
+same returns give the same queries. Each method's settings, with their defaults, are its dataclass
+in `methods.METHODS`; an optimizer takes that dataclass, or its fields as keywords.
 """
 
 from __future__ import annotations
@@ -13,13 +12,12 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from statistics import NormalDist
-from typing import Protocol
 
 import numpy as np
 
-from goldenticket.config import (
+from goldenticket.errors import UserError
+from goldenticket.ticket_search.methods import (
     CEMBoundsSettings,
     CEMRacingSettings,
     CEMSettings,
@@ -32,33 +30,8 @@ from goldenticket.config import (
     ZerothOrderSettings,
     method_settings,
 )
-from goldenticket.errors import UserError
-
-
-@dataclass(frozen=True, eq=False)
-class Query:
-    """Roll `ticket` out once on each of `seeds`. The ticket is stored as a read-only float32 copy."""
-
-    ticket: np.ndarray
-    seeds: tuple[int, ...]
-
-    def __post_init__(self) -> None:
-        ticket = np.array(self.ticket, dtype=np.float32)
-        ticket.flags.writeable = False
-        object.__setattr__(self, "ticket", ticket)
-        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
-
-
-class Optimizer(Protocol):
-    """What the search driver needs; `seeds` are the search seeds the optimizer rolls out on."""
-
-    seeds: tuple[int, ...]
-
-    def ask(self) -> list[Query]:
-        """Queries to evaluate next; [] means the optimizer is finished."""
-
-    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
-        """Report `returns[i]`, the per-seed returns of `queries[i]`, for the whole last ask."""
+from goldenticket.ticket_search.protocol import Optimizer, Query
+from goldenticket.ticket_search.racing import Race, TicketRace, better_half, in_blocks
 
 
 def _require(ok: bool, message: str) -> None:
@@ -226,36 +199,36 @@ class ZerothOrder(_Base):
 
 
 class _RacedCEM(CEM):
-    """CEM whose population runs block by block over the search seeds; after each block
-    `_survivors` decides who races on (none left: the race is over), and CEM refits on every
-    candidate's mean over the episodes it ran."""
+    """CEM whose population is raced (`racing.TicketRace`) on blocks of `block` search seeds; `_cut`
+    says who races on after each block, and once the race is over CEM refits on every candidate's
+    mean over the episodes it ran, its returns summed block by block (`_block_sums_mean`)."""
 
     def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
                  block: int, settings: CEMSettings):
         super().__init__(noise_shape, seeds, rng, settings)
-        self.blocks = [self.seeds[i : i + block] for i in range(0, len(self.seeds), block)]
-        self._alive = np.arange(0)  # population indices still racing; empty between iterations
+        self.blocks = in_blocks(self.seeds, block)
+        self._race: TicketRace | None = None
 
     def ask(self) -> list[Query]:
-        if not len(self._alive):
+        if self._race is None or self._race.over:
             if self._finished():
                 return []
-            self._tickets, self._block = self._sample(), 0
-            self._alive = np.arange(self.population)
-            self._sums, self._counts = np.zeros(self.population), np.zeros(self.population)
-        return self._queries(self._tickets[self._alive], self.blocks[self._block])
+            self._race = TicketRace(self._sample(), self.blocks, self._cut, _block_sums_mean)
+        return self._race.queries()
 
     def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
-        self._sums[self._alive] += [np.sum(r) for r in returns]
-        self._counts[self._alive] += [len(r) for r in returns]
-        self._block += 1
-        means = self._sums / self._counts  # every candidate ran the first block, so counts > 0
-        self._alive = self._survivors(means) if self._block < len(self.blocks) else np.arange(0)
-        if not len(self._alive):
-            self._refit(self._tickets, means)
+        self._race.record(returns)
+        if self._race.over:
+            self._refit(self._race.tickets, np.array([self._race.score(i) for i in range(self.population)]))
 
-    def _survivors(self, means: np.ndarray) -> np.ndarray:
+    def _cut(self, race: Race) -> list[int]:
         raise NotImplementedError
+
+
+def _block_sums_mean(blocks: list[np.ndarray]) -> float:
+    """The mean return over the episodes of `blocks`, summed block by block as CEM's races always
+    have (summed in another order, the last bit can differ)."""
+    return sum(np.sum(returns) for returns in blocks) / sum(len(returns) for returns in blocks)
 
 
 class CEMRacing(_RacedCEM):
@@ -278,9 +251,8 @@ class CEMRacing(_RacedCEM):
         m0 = len(seeds) // tiers
         super().__init__(noise_shape, seeds[: tiers * m0], rng, m0, s)
 
-    def _survivors(self, means: np.ndarray) -> np.ndarray:
-        keep = max(1, len(self._alive) // 2)
-        return np.sort(self._alive[_top_indices(means[self._alive], keep)])
+    def _cut(self, race: Race) -> list[int]:
+        return better_half(race)
 
 
 class CEMBounds(_RacedCEM):
@@ -302,12 +274,14 @@ class CEMBounds(_RacedCEM):
         super().__init__(noise_shape, seeds, rng, block, s)
         self.delta, self.value_range = delta, value_range
 
-    def _survivors(self, means: np.ndarray) -> np.ndarray:
-        half = self.value_range * np.sqrt(np.log(2 / self.delta) / (2 * self._counts))
-        alive = self._alive
-        bar = np.sort((means - half)[alive])[-min(self.n_elite, len(alive))]
-        alive = alive[(means + half)[alive] >= bar]
-        return alive if len(alive) > self.n_elite else np.arange(0)
+    def _cut(self, race: Race) -> list[int]:
+        alive = np.array(race.alive)
+        means = np.array([race.score(i) for i in race.alive])
+        runs = sum(len(returns) for returns in race.results[race.alive[0]])  # the same for all still in
+        half = self.value_range * np.sqrt(np.log(2 / self.delta) / (2 * runs))
+        bar = np.sort(means - half)[-min(self.n_elite, len(alive))]
+        alive = alive[means + half >= bar]
+        return alive.tolist() if len(alive) > self.n_elite else []
 
 
 class CMAES(_Base):
@@ -502,7 +476,7 @@ OPTIMIZERS: dict[str, type] = {
 
 def make_optimizer(method: str, noise_shape: tuple[int, int], seeds: Sequence[int],
                    rng: np.random.Generator, **changed) -> Optimizer:
-    """The optimizer named `method` with its settings' defaults (`config.METHODS`) but the `changed`
+    """The optimizer named `method` with its settings' defaults (`methods.METHODS`) but the `changed`
     ones (an array, such as a start ticket, as nested lists)."""
     changed = {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in changed.items()}
     settings = method_settings(method, changed)

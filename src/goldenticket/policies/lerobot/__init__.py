@@ -23,10 +23,10 @@ from goldenticket.policies.lerobot.vla import VLAPolicy
 __all__ = ["LeRobotPolicy", "checked_config", "is_checkpoint", "load"]
 
 
-def load(path: str | Path, steps: int | None = None, name: str | None = None,
-         device: str = "cpu") -> LeRobotPolicy:
-    """The adapter for the folder's policy type, loaded on `device`; one-line UserError for a
-    folder no ticket can steer."""
+def load(path: str | Path, steps: int | None = None, name: str | None = None, device: str = "cpu",
+         rename_map: dict | None = None, overrides: dict | None = None) -> LeRobotPolicy:
+    """The adapter for the folder's policy type, loaded on `device` with `rename_map` and config
+    `overrides` (LeRobotPolicy); one-line UserError for a folder no ticket can steer."""
     kind = checked_config(Path(path))["type"]
     adapter = DiffusionPolicyAdapter if kind == "diffusion" else VLAPolicy
-    return adapter(path, steps, name, device)
+    return adapter(path, steps, name, device, rename_map, overrides)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import torch
 
+from goldenticket.errors import UserError
 from goldenticket.policies.lerobot.checkpoint import LeRobotPolicy
 
 
@@ -18,6 +19,28 @@ class DiffusionPolicyAdapter(LeRobotPolicy):
     @property
     def denoising_steps(self) -> int:
         return self.model.diffusion.num_inference_steps
+
+    def _most_actions(self, cfg) -> int:
+        """The actions after the observed steps in the horizon `generate_actions` predicts."""
+        return cfg.horizon - cfg.n_obs_steps + 1
+
+    def _check_cameras(self, cameras: dict[str, tuple[int, ...]]) -> None:
+        """Every camera of the policy, its frames of the size its image encoder takes: any size where
+        it resizes them (`resize_shape`), at least its `crop_shape` where it crops them, else its own."""
+        crop = self.cfg.crop_shape
+        for key, feature in self.cfg.image_features.items():
+            wanted, given = tuple(feature.shape), cameras.get(key)
+            if given is None:
+                raise UserError(f"policy {self.name!r} reads camera {key!r}, and the env's cameras are "
+                                f"{sorted(cameras)}; map one to it with rename_map (--rename-map "
+                                f"ENV_KEY={key})")
+            sized = given[1] >= crop[0] and given[2] >= crop[1] if crop else given[1:] == wanted[1:]
+            if given[0] != wanted[0] or not (self.cfg.resize_shape is not None or sized):
+                takes = f"at least {crop[0]}x{crop[1]} (its crop)" if crop else f"{wanted[1]}x{wanted[2]}"
+                raise UserError(f"policy {self.name!r}: camera {key!r} gives {given[0]} x "
+                                f"{given[1]}x{given[2]} frames and the diffusion policy's image encoder "
+                                f"takes {wanted[0]} x {takes}, without resizing them: train it on this env's "
+                                "frames (or with resize_shape)")
 
     def _batch(self, raw) -> dict:
         """The frames `select_action` queues, with the cameras stacked as `generate_actions` reads them."""
