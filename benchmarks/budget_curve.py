@@ -28,8 +28,8 @@ import json
 from existence import FRESH_RANGES, HERE, SETTINGS, WEAK_BASE, run_folder, run_pair, table_row, target_summary
 from results_files import RESULTS, write_results
 
-from goldenticket.config import METHODS
 from goldenticket.files import write_atomic
+from goldenticket.ticket_search import METHODS
 
 ROWS = RESULTS / "budget_curve"
 SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {

@@ -1,7 +1,7 @@
 """A shipped LeRobot policy's ticket deployed inside LeRobot: LeRobot's own eval loop (`eval_policy`,
-the function behind `lerobot-eval`) runs the policy with `select_action(batch, noise=ticket)` on
-held-out seeds, and goldenticket's engine runs the same episodes; both success rates are printed,
-with the seeds where the two disagree. In the LeRobot venv, from the repository root:
+the function behind `lerobot-eval`) runs the policy with the ticket (`with_ticket`) on held-out
+seeds, and goldenticket's engine runs the same episodes; both success rates are printed, with the
+seeds where the two disagree. In the LeRobot venv, from the repository root:
 
     python examples/lerobot_eval.py [--seeds 1005000:1005300]              # lerobot_reach_policy
     python examples/lerobot_eval.py --example smolvla [--seeds 1005000:1005300]  # smolvla_metaworld_policy
@@ -10,13 +10,13 @@ with the seeds where the two disagree. In the LeRobot venv, from the repository 
 import argparse
 import sys
 import time
-from functools import partial
 from pathlib import Path
 
 import torch
 
 from goldenticket.noise import Constant
 from goldenticket.policies import load_policy
+from goldenticket.policies.lerobot import with_ticket
 from goldenticket.rollout import Engine, Episode
 from goldenticket.tasks import get_task
 from goldenticket.tickets import Ticket
@@ -44,12 +44,11 @@ def vector_env(task: str):
 
 
 def lerobot_successes(policy, ticket: torch.Tensor, task: str, seeds: range) -> list[bool]:
-    """Per-episode successes from LeRobot's eval_policy, the ticket fed to select_action."""
+    """Per-episode successes from LeRobot's eval_policy, the model acting with the ticket."""
     from lerobot.processor import PolicyProcessorPipeline
     from lerobot.scripts.lerobot_eval import eval_policy
 
-    model, identity = policy.model, PolicyProcessorPipeline(steps=[])  # no env-specific processing
-    model.select_action = partial(type(model).select_action, model, noise=ticket.expand(ENVS, *ticket.shape))
+    model, identity = with_ticket(policy.model, ticket), PolicyProcessorPipeline(steps=[])  # no env steps
     info = eval_policy(vector_env(task), model, identity, identity, policy.preprocessor,
                        policy.postprocessor, n_episodes=len(seeds), start_seed=seeds.start)
     return [bool(e["success"]) for e in info["per_episode"]]

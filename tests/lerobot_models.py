@@ -35,3 +35,16 @@ def tiny_smolvla(folder: Path, backbone: Path, inputs: dict, outputs: dict, **se
                         load_vlm_weights=False, device="cpu", push_to_hub=False, **settings)
     torch.manual_seed(0)
     return save(SmolVLAPolicy(cfg), cfg, folder)
+
+
+def in_hub_cache(cache: Path, repo_id: str, folder: Path) -> Path:
+    """`folder`'s files laid out in the Hugging Face Hub cache `cache` as `hf download repo_id` leaves
+    them: models--owner--name/snapshots/<revision>/..., and refs/main naming the revision."""
+    import shutil
+
+    repo = cache / ("models--" + repo_id.replace("/", "--"))
+    revision = "0123456789abcdef0123456789abcdef01234567"
+    shutil.copytree(folder, repo / "snapshots" / revision)
+    (repo / "refs").mkdir()
+    (repo / "refs" / "main").write_text(revision)
+    return repo / "snapshots" / revision

@@ -156,7 +156,7 @@ def test_search_picture_marks_validated_judged_and_chosen_tickets_beside_the_hel
     assert _points(ax, "sent to validation") == [(2, 0.9), (4, 0.7), (6, 0.8)]
     assert _points(ax, "judged on held-out seeds") == [(4, 0.7), (2, 0.9)]
     assert _points(ax, delivered) == [(4, 0.7)]
-    assert side.get_title(loc="left") == "judged on held-out seeds 1000000:1000010"  # the base among the rows there
+    assert side.get_title(loc="left") == "judged on held-out seeds 1000000:1000010"  # the base among them
     assert [t.get_text() for t in side.get_yticklabels()] == list(rows)
     assert [t.get_text() for t in side.get_yticklabels() if t.get_fontweight() == "bold"] == ["ticket ab12"]
 

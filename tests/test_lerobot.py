@@ -28,7 +28,13 @@ sys.path.insert(0, str(ROOT))  # examples.lerobot_reach, here and in worker proc
 from examples.lerobot_reach import make_env, make_vector_env  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from lerobot_checks import CameraReach, lerobot_loop, same_actions_as_lerobot  # noqa: E402
+from lerobot_checks import (  # noqa: E402
+    CameraReach,
+    lerobot_loop,
+    robot_loop_acts_as_goldenticket,
+    same_actions_as_lerobot,
+)
+from lerobot_models import in_hub_cache  # noqa: E402
 
 HAS_LEROBOT = importlib.util.find_spec("lerobot") is not None
 SHIPPED = ROOT / "examples" / "lerobot_reach_policy"
@@ -133,6 +139,14 @@ def test_actions_are_those_of_lerobots_own_loop(tmp_path, settings, factory):
     same_actions_as_lerobot(lerobot_checkpoint(tmp_path / "policy", **settings), factory)
 
 
+@pytest.mark.slow
+@needs_lerobot
+def test_a_ticket_runs_inside_lerobots_robot_loop(tmp_path):
+    """`with_ticket`'s diffusion policy, one robot in LeRobot's robot loop: select_action keeps the last
+    2 frames of camera and state, and acts as goldenticket does on that history."""
+    robot_loop_acts_as_goldenticket(lerobot_checkpoint(tmp_path / "policy", images=True), make_pixel_env)
+
+
 @needs_lerobot
 def test_shipped_ticket_gives_lerobots_per_episode_successes():
     """goldenticket's engine and LeRobot's eval loop, on the same held-out seeds with the shipped
@@ -189,8 +203,53 @@ def test_a_checkpoint_is_searched_through_the_api_and_resumed(tmp_path):
 @needs_lerobot
 def test_observations_without_the_input_features_are_refused(tmp_path):
     policy = load_policy(str(lerobot_checkpoint(tmp_path / "policy", images=True)))
-    with pytest.raises(UserError, match="input features are .*observation.image"):
+    with pytest.raises(UserError, match="reads camera 'observation.image', and the env's cameras are \\[\\]"):
         rollout(policy, get_task(REACH), [Episode(Gaussian(), 1_000_000)])
+
+
+@needs_lerobot
+def test_a_hub_repo_id_loads_its_snapshot_from_the_hub_cache(tmp_path, monkeypatch):
+    """`--policy owner/name`, as lerobot-eval's --policy.path takes it: huggingface_hub's snapshot in the
+    cache (offline here), the same policy as its folder, named by the repo id."""
+    from huggingface_hub import constants
+
+    from goldenticket.zoo import bundled_task
+
+    folder = lerobot_checkpoint(tmp_path / "policy")
+    in_hub_cache(tmp_path / "hub", "someone/reach-diffusion", folder)
+    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(tmp_path / "hub"))
+    monkeypatch.setattr(constants, "HF_HUB_OFFLINE", True)
+    policy = load_policy("someone/reach-diffusion@2")
+    assert policy.name == "someone/reach-diffusion@2" and policy.denoising_steps == 2
+    assert policy.fingerprint() == load_policy(f"{folder}@2").fingerprint()
+    assert bundled_task("someone/reach-diffusion") is None
+
+
+@pytest.mark.slow
+@needs_lerobot
+def test_n_action_steps_is_overridden_as_lerobot_eval_does(tmp_path, capsys):
+    """policy_override n_action_steps=N: N actions a call, another fingerprint, recorded in the ticket,
+    which then runs as found; a value the model cannot take, or another setting, is one line."""
+    folder = str(lerobot_checkpoint(tmp_path / "policy"))  # horizon 8, 2 observed steps: at most 7
+    policy, saved = load_policy(folder, overrides={"n_action_steps": 6}), load_policy(folder)
+    assert policy.n_exec == 6 and policy.fingerprint() == saved.fingerprint() + "-n_action_steps6"
+    assert pickle.loads(pickle.dumps(policy)).n_exec == 6
+    assert load_policy(folder, overrides={"n_action_steps": 4}).fingerprint() == saved.fingerprint()
+    for override, says in (({"n_action_steps": 8}, "integer from 1 to 7"),
+                           ({"horizon": 16}, "goldenticket changes n_action_steps")):
+        with pytest.raises(UserError, match=says):
+            load_policy(folder, overrides=override)
+    out = tmp_path / "run"
+    assert main(["search", "--policy", folder, "--task", REACH, "--policy-override", "n_action_steps=6",
+                 "--method", "rs", "--budget", "2", "--search-seeds", "1", "--validation-seeds", "0",
+                 "--heldout", "2", "--top-k", "1", "--max-steps", "12", "--workers", "1",
+                 "--out", str(out)]) == 0
+    ticket = next((out / "tickets").glob("*.safetensors"))
+    assert Ticket.load(ticket).metadata["policy_override"] == {"n_action_steps": 6}
+    capsys.readouterr()
+    assert main(["evaluate", "--policy", folder, "--ticket", str(ticket), "--task", REACH,
+                 "--max-steps", "12", "--seeds", "1000000:1000002", "--workers", "1", "--json"]) == 0
+    assert set(json.loads(capsys.readouterr().out)) == {"base", "zero", Ticket.load(ticket).id}
 
 
 MARKER_STEP = """\

@@ -13,6 +13,7 @@ import pytest
 from goldenticket import checks
 from goldenticket.cli import main
 from goldenticket.errors import UserError
+from goldenticket.policies import load_policy
 from goldenticket.tasks import get_task
 from goldenticket.tasks.base import observation_digest
 
@@ -154,26 +155,32 @@ def features(state: int, action: int, cameras: dict):
     return inputs, {"action": PolicyFeature(FeatureType.ACTION, (action,))}
 
 
-def pusht_diffusion(folder: Path) -> Path:
-    """An untrained LeRobot diffusion policy (DDIM) with PushT's features: its 96 px frame and position."""
+def diffusion(folder: Path, state: int, action: int, cameras: dict, high: float) -> Path:
+    """An untrained LeRobot diffusion policy (DDIM) with these features, its state and actions spanning
+    0 to `high`; its image encoder takes frames of the cameras' size alone (no crop, no resize)."""
     import torch
     from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
     from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
     from lerobot.policies.diffusion.processor_diffusion import make_diffusion_pre_post_processors
 
-    inputs, outputs = features(2, 2, {"observation.image": (3, 96, 96)})
+    inputs, outputs = features(state, action, cameras)
     cfg = DiffusionConfig(input_features=inputs, output_features=outputs, down_dims=(16, 32),
                           diffusion_step_embed_dim=16, noise_scheduler_type="DDIM", num_inference_steps=3,
                           horizon=8, n_action_steps=4, crop_shape=None, device="cpu", push_to_hub=False,
                           pretrained_backbone_weights=None)
     torch.manual_seed(0)
     DiffusionPolicy(cfg).save_pretrained(folder)
-    stats = {"observation.state": {"min": torch.zeros(2), "max": torch.full((2,), 512.0)},
-             "action": {"min": torch.zeros(2), "max": torch.full((2,), 512.0)},
-             "observation.image": {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.3)}}
+    stats = {"observation.state": {"min": torch.zeros(state), "max": torch.full((state,), high)},
+             "action": {"min": torch.zeros(action), "max": torch.full((action,), high)}}
+    stats |= {key: {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.3)} for key in cameras}
     for pipeline in make_diffusion_pre_post_processors(cfg, stats):
         pipeline.save_pretrained(folder)
     return folder
+
+
+def pusht_diffusion(folder: Path) -> Path:
+    """PushT's features: its 96 px frame and position."""
+    return diffusion(folder, 2, 2, {"observation.image": (3, 96, 96)}, 512.0)
 
 
 def searched_twice(tmp_path: Path, folder: Path, task: str) -> list[dict]:
@@ -212,3 +219,35 @@ def test_an_env_whose_observations_are_not_the_policys_features_is_one_line(tmp_
                  "--seeds", "1000000:1000001"]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(errors) == 1 and "input features are" in errors[0] and "observation.images.top" in errors[0]
+
+
+def test_a_vla_declaring_smaller_frames_than_liberos_passes_the_compatibility_check(tmp_path, libero_task,
+                                                                                      backbone):
+    """SmolVLA resizes its frames: one trained on 128 x 128 cameras reads LIBERO's 360 x 360 ones (the
+    check that builds no env, the first)."""
+    size = (3, 128, 128)
+    inputs, outputs = features(8, 7, {"observation.images.image": size, "observation.images.image2": size})
+    policy = load_policy(str(tiny_smolvla(tmp_path / "policy", backbone, inputs, outputs)))
+    declared = next(checks.results(libero_task, policy))
+    assert (declared.name, declared.passed) == ("the policy reads the task's observations", True), declared
+
+
+def test_a_diffusion_policy_on_frames_its_encoder_cannot_take_is_one_line_before_any_env(
+        tmp_path, monkeypatch, capsys):
+    """A fixed-size image encoder (96 x 96) on LIBERO's 360 x 360 frames: one line, exit 2, from `search` and
+    `evaluate`, before any env is built (the checks that build envs would fail the test)."""
+    from goldenticket.tasks.lerobot_envs import LeRobotEnvTask
+
+    def built(*_):
+        raise AssertionError("an env was built before the mismatch was reported")
+
+    monkeypatch.setattr(LeRobotEnvTask, "make_env", built)
+    monkeypatch.setattr(checks, "TASK_CHECKS", dict.fromkeys(checks.TASK_CHECKS, built))
+    size = (3, 96, 96)
+    folder = diffusion(tmp_path / "policy", 8, 7, {"observation.images.image": size,
+                                                   "observation.images.image2": size}, 1.0)
+    for command in (["search", "--out", str(tmp_path / "run")], ["evaluate", "--seeds", "1000000:1000002"]):
+        assert main([*command, "--policy", str(folder), "--task", LIBERO]) == 2
+        errors = capsys.readouterr().err.strip().splitlines()
+        assert len(errors) == 1 and "'observation.images.image' gives 3 x 360x360 frames" in errors[0], errors
+        assert "image encoder takes 3 x 96x96, without resizing them" in errors[0]

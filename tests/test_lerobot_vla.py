@@ -21,7 +21,7 @@ from goldenticket.tasks import get_task
 ROOT = Path(__file__).parents[1]
 sys.path.insert(0, str(ROOT))  # examples.*, here and in worker processes
 sys.path.insert(0, str(Path(__file__).parent))
-from lerobot_checks import CameraReach, same_actions_as_lerobot  # noqa: E402
+from lerobot_checks import CameraReach, robot_loop_acts_as_goldenticket, same_actions_as_lerobot  # noqa: E402
 from lerobot_models import save, tiny_smolvla  # noqa: E402
 
 pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.skipif(
@@ -38,6 +38,10 @@ class OneCamera(TwoCameras):
     cameras = ("image",)
 
 
+class OtherCamera(TwoCameras):
+    cameras = ("image", "wrist")
+
+
 class Unsaid(TwoCameras):
     task_description = None
 
@@ -48,6 +52,10 @@ def two_cameras() -> gym.Env:
 
 def one_camera() -> gym.Env:
     return gym.wrappers.TimeLimit(OneCamera(), 12)
+
+
+def other_camera() -> gym.Env:
+    return gym.wrappers.TimeLimit(OtherCamera(), 12)
 
 
 def no_instruction() -> gym.Env:
@@ -126,8 +134,8 @@ def vla(kind: str, folder: Path, backbone: Path) -> Path:
 
 
 @pytest.mark.parametrize(("factory", "settings"), [
-    (two_cameras, {}), (one_camera, {}), (two_cameras, {"chunk_size": 6, "n_action_steps": 3}),
-], ids=["two-cameras", "one-camera", "chunk-6"])
+    (one_camera, {}), (two_cameras, {"chunk_size": 6, "n_action_steps": 3}),
+], ids=["one-camera", "chunk-6"])
 def test_smolvla_acts_as_in_lerobots_own_loop(tmp_path, backbone, factory, settings):
     folder = smolvla(tmp_path / "policy", backbone, cameras=len(factory().unwrapped.cameras), **settings)
     assert load_policy(str(folder)).noise_shape == (settings.get("chunk_size", 10), 32)
@@ -143,12 +151,15 @@ def first_observation() -> dict:
 VLAS = ("smolvla", "pi0", "pi05")
 
 
-@pytest.mark.parametrize("kind", ["pi0", "pi05"])
-def test_pi0_and_pi05_act_as_in_lerobots_own_loop(tmp_path, tiny_paligemma, kind):
-    """Their select_action takes no noise: LeRobot's loop gets the ticket through predict_action_chunk."""
-    folder = paligemma_vla(kind, tmp_path / "policy")
+@pytest.mark.parametrize("kind", VLAS)
+def test_a_ticket_runs_inside_lerobots_eval_and_robot_loops(tmp_path, backbone, tiny_paligemma, kind):
+    """`with_ticket`'s policy in LeRobot's eval_policy gives goldenticket's episodes, and in its robot
+    loop goldenticket's actions; pi0's and pi0.5's select_action takes no noise, their
+    predict_action_chunk gets it."""
+    folder = vla(kind, tmp_path / "policy", backbone)
     assert load_policy(str(folder)).noise_shape == (10, 32)
     same_actions_as_lerobot(folder, two_cameras)
+    robot_loop_acts_as_goldenticket(folder, two_cameras)
 
 
 @pytest.mark.parametrize("kind", VLAS)
@@ -181,10 +192,28 @@ def test_a_language_policy_on_a_task_without_an_instruction_is_refused(tmp_path,
                 get_task(no_instruction), [Episode(Constant(np.zeros((10, 32))), 1)])
 
 
-def test_cameras_that_do_not_match_the_checkpoint_are_refused(tmp_path, backbone):
-    folder = smolvla(tmp_path / "policy", backbone, cameras=2)
-    with pytest.raises(UserError, match="input features are .*observation.images.image1"):
-        rollout(load_policy(str(folder)), get_task(one_camera), [Episode(Constant(np.zeros((10, 32))), 1)])
+def test_cameras_are_checked_by_key_as_lerobot_checks_them_and_renamed_as_it_renames_them(tmp_path,
+                                                                                          backbone):
+    """LeRobot's check: the env's cameras among the policy's, or the policy's among the env's; else one
+    line, until rename_map maps the env's key to the policy's, as lerobot-eval's --rename_map does."""
+    folder = str(smolvla(tmp_path / "policy", backbone, cameras=2))
+    episode = [Episode(Constant(np.zeros((10, 32))), 1)]
+    assert rollout(load_policy(folder), get_task(one_camera), episode)[0].length > 0  # one camera of two
+    with pytest.raises(UserError, match=r"cameras \['observation.images.image', 'observation.images.wrist'\] "
+                       r"and the policy's input features are .*neither holds the other.*--rename-map"):
+        rollout(load_policy(folder), get_task(other_camera), episode)
+    renamed = load_policy(folder, rename_map={"observation.images.wrist": "observation.images.image1"})
+    ours = rollout(renamed, get_task(other_camera), episode, record_actions=True)[0].actions
+    theirs = rollout(load_policy(folder), get_task(two_cameras), episode, record_actions=True)[0].actions
+    np.testing.assert_array_equal(ours, theirs)  # the same frames, under the policy's keys
+
+
+def test_a_vla_takes_frames_of_any_size_as_it_resizes_them(tmp_path, backbone):
+    """SmolVLA resizes its frames itself: one declaring 128 x 128 cameras acts on 32 x 32 frames."""
+    inputs, outputs = features(2)
+    inputs |= {key: type(f)(f.type, (3, 128, 128)) for key, f in inputs.items() if "images" in key}
+    policy = load_policy(str(tiny_smolvla(tmp_path / "policy", backbone, inputs, outputs)))
+    assert rollout(policy, get_task(two_cameras), [Episode(Constant(np.zeros((10, 32))), 1)])[0].length > 0
 
 
 def test_a_checkpoint_whose_backbone_is_not_on_disk_names_what_to_download(tmp_path, backbone, capsys):

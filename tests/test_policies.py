@@ -49,6 +49,40 @@ def test_bad_policy_inputs(tmp_path):
         MLPPolicy.load(tmp_path)
 
 
+def test_a_hub_repo_id_is_told_from_bundled_names_paths_and_import_strings(tmp_path, monkeypatch):
+    from goldenticket.zoo import check_name, is_hub_id
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs" / "policy").mkdir(parents=True)
+    assert is_hub_id("lerobot/smolvla_libero") and is_hub_id("someone/my.policy-v2")
+    for name in ("metaworld/pick-place-v3/flow", "metaworld/pick-place-v3", "byo_example:make_policy",
+                 "runs/policy", "lerobot/a/b", "../x", "a/../b", "nope"):
+        assert not is_hub_id(name), name
+    with pytest.raises(UserError, match="unknown policy 'metaworld/pick-place-v3'"):
+        check_name("metaworld/pick-place-v3")
+
+
+def test_a_hub_repo_id_is_looked_up_in_the_hub_cache_and_one_not_there_names_the_download(
+        tmp_path, monkeypatch, capsys):
+    pytest.importorskip("huggingface_hub")
+    from huggingface_hub import constants
+
+    from goldenticket.cli import main
+    from goldenticket.zoo import check_name
+
+    repo = tmp_path / "hub" / "models--someone--cached"
+    (repo / "snapshots" / "abc123").mkdir(parents=True)
+    (repo / "refs").mkdir()
+    (repo / "refs" / "main").write_text("abc123")
+    monkeypatch.setattr(constants, "HF_HUB_CACHE", str(tmp_path / "hub"))
+    monkeypatch.setattr(constants, "HF_HUB_OFFLINE", True)
+    check_name("someone/cached@4")  # the command line's pre-check: in the cache
+    assert main(["evaluate", "--policy", "someone/not-cached", "--task", "metaworld/reach-v3",
+                 "--seeds", "1000000:1000002"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "`hf download someone/not-cached`" in lines[0], lines
+
+
 @pytest.mark.slow
 def test_every_bundled_policy_loads_runs_and_has_a_model_card(rng):
     from goldenticket.policies import BUNDLED_DIR, for_task, policy_names

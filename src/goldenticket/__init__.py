@@ -1,7 +1,7 @@
 """goldenticket: golden-ticket search for frozen diffusion and flow-matching robot policies.
 
-`search` and `evaluate` are the Python twins of `goldenticket search` and `goldenticket
-evaluate`: same optimizers, statistics, run store, resume and worker pool.
+`search`, `evaluate` and `compare` are the Python twins of `goldenticket search`, `goldenticket
+evaluate` and `goldenticket compare`: same optimizers, statistics, run store, resume and worker pool.
 
 - `policy`: a NoisePolicy object (`goldenticket.policies.NoisePolicy`: `noise_shape`, `n_exec`,
   `act(obs, noise)`), a bundled policy name, a policy folder, or an import string
@@ -55,3 +55,25 @@ def evaluate(policy, task=None, tickets: Sequence[str | Path] = (),
     cfg = make(EvaluateConfig, {"policy": policy, "task": task, "tickets": tickets,
                                 "seeds": seeds} | options)
     return {arm.key: row for arm, row in evaluate_tickets(cfg).items()}
+
+
+def compare(policy, against, task=None, seeds: Iterable[int] = range(1_000_000, 1_000_200),
+            out: str | Path | None = None, **options):
+    """Policy A (`policy`, with `ticket=` if given) against policy B (`against`, with
+    `against_ticket=`; the same policy to compare it with and without a ticket) on the same held-out
+    `seeds`, each seed one initial state both start from: a `results.Comparison`. Its typed rows
+    `a` and `b` (`results.ComparedArm`) hold each arm's success with its Wilson interval (`rate`)
+    and each seed's success (`successes`); it gives the discordant seeds (`a_only`, `b_only`), the
+    exact paired one-sided p-values both ways (`p_a_better`, `p_b_better`), the two-sided one
+    (`p_two_sided`) and the arm it finds better (`better`: "A", "B" or None); `to_dict()` is what
+    `compare --json` prints. `out`: a folder whose run store keeps every episode, so a rerun
+    resumes. `task`, `max_steps` and `success` default to those the tickets were found under, the
+    task else to the one the bundled policies were trained on. `options`: the other fields of
+    `config.CompareConfig` (ticket, against_ticket, seed, max_steps, success, allow_transfer,
+    rename_map, policy_override, workers, backend, address, max_nonfinite, device, step_timeout)."""
+    from goldenticket.config import CompareConfig, make
+    from goldenticket.job.compare import compare_policies
+
+    seeds = seeds if isinstance(seeds, range) else list(seeds)
+    cfg = make(CompareConfig, {"policy": policy, "against": against, "task": task, "seeds": seeds} | options)
+    return compare_policies(cfg, out)

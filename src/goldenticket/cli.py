@@ -444,6 +444,34 @@ def _evaluate(args) -> int:
     return 0
 
 
+def _compare(args) -> int:
+    cfg = make(CompareConfig, _options(args, CompareConfig))
+    cfg.check()  # a bad option, policy or task name or ticket answers before anything loads
+    _check_names({"policy": cfg.policy, "task": cfg.task})
+    check_name(cfg.against)
+    for ref in (cfg.ticket, cfg.against_ticket):
+        if ref is not None:
+            find_ticket(ref)
+    _check_plot(args.plot)
+    from goldenticket.job.compare import compare_policies
+    from goldenticket.plots import comparison_png
+    from goldenticket.report import comparison_text
+
+    comparison = compare_policies(cfg, args.out)
+    if args.plot is not None:
+        first, last = comparison.seeds
+        comparison_png(comparison, args.plot, f"{comparison.task}, seeds {first}:{last + 1}")
+    if args.json:
+        print(json.dumps(comparison.to_dict(), indent=2))
+        return 0
+    print(comparison_text(comparison))
+    if args.out is not None:
+        print(f"Every episode is kept in {args.out / 'run.sqlite'}: rerun the command to resume.")
+    if args.plot is not None:
+        print(f"Wrote {args.plot}.")
+    return 0
+
+
 def _train(args) -> int:
     cfg = make(TrainConfig, _options(args, TrainConfig))
     cfg.check()
@@ -550,10 +578,11 @@ def _session(args) -> int:
 
 
 CONFIGS = {"demo": (SearchConfig,), "search": (SearchConfig,), "transfer": (TransferOptions, SearchConfig),
-           "evaluate": (EvaluateConfig,), "train": (TrainConfig,), "check": (CheckConfig,),
-           "session": (SessionConfig, ServeConfig)}
-COMMANDS = {"demo": _demo, "search": _search, "transfer": _transfer, "evaluate": _evaluate, "train": _train,
-            "check": _check, "policies": _policies, "tickets": _tickets, "session": _session}
+           "evaluate": (EvaluateConfig,), "compare": (CompareConfig,), "train": (TrainConfig,),
+           "check": (CheckConfig,), "session": (SessionConfig, ServeConfig)}
+COMMANDS = {"demo": _demo, "search": _search, "transfer": _transfer, "evaluate": _evaluate,
+            "compare": _compare, "train": _train, "check": _check, "policies": _policies, "tickets": _tickets,
+            "session": _session}
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,7 +1,7 @@
-"""Every option of a search, an evaluation, a training run, a transfer, a real-robot session and a
-check, once: typed fields with their defaults and help (`options.option`); each search method's
-settings are its own, in `ticket_search.methods`. Pure data and checks: it imports nothing of
-goldenticket's but errors, options, factories, seeds, objectives and those settings.
+"""Every option of a search, an evaluation, a comparison, a training run, a transfer, a real-robot
+session and a check, once: typed fields with their defaults and help (`options.option`); each search
+method's settings are its own, in `ticket_search.methods`. Pure data and checks: it imports nothing
+of goldenticket's but errors, options, factories, seeds, objectives and those settings.
 
 The command line's flags are generated from these fields (`cli.py`: field `search_seeds` is
 `--search-seeds`), a run can be given as a TOML file whose keys are the fields, and every search's

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 COLORS = {"base": "0.45", "zero ticket": "tab:blue", "golden": "goldenrod", "ticket": "tab:green"}
 ARMS = {"base": "base (Gaussian noise)", "zero ticket": "zero ticket", "golden": "golden ticket",
         "ticket": "ticket, not golden"}
+SIDES = {"A": "tab:blue", "B": "0.45"}  # a comparison's arms, neither significantly better
 GREENS = colormaps["Greens"]  # search scores: darker, more search seeds run
 LABEL_BOX = {"boxstyle": "square,pad=0.1", "facecolor": "white", "edgecolor": "none"}  # over the base line
 
@@ -75,16 +76,17 @@ def _rate_point(ax, rate: Rate, y: float, color: str, label: str | None = None) 
 
 def comparison_png(comparison: Comparison, path: Path, title: str) -> Path:
     """Arms A and B: success on the same seeds with 95% Wilson intervals, the better one (two-sided
-    exact paired test, p < 0.05) in gold, the test's p-values under the axis."""
+    exact paired test, p < 0.05) in gold, the test's p-values under the title."""
     c = comparison
-    fig = Figure(figsize=(8.5, 2.3))
+    fig = Figure(figsize=(8.5, 2.6), layout="constrained")
     ax = fig.subplots()
     for y, (side, arm) in enumerate((("A", c.a), ("B", c.b))):
-        _rate_point(ax, arm.rate, y, COLORS["golden" if c.better == side else "base"])
+        _rate_point(ax, arm.rate, y, COLORS["golden"] if c.better == side else SIDES[side])
     ax.set_yticks([0, 1], [f"A: {c.a.label}", f"B: {c.b.label}"])
-    ax.set(xlim=(-0.04, 1.04), ylim=(1.5, -0.7), xticks=[i / 5 for i in range(6)], title=title,
-           xlabel=f"success, 95% Wilson interval, on {c.a.rate.n} paired seeds; exact paired test: p A > B "
-                  f"{c.p_a_better:.3g}, p B > A {c.p_b_better:.3g}, two-sided {c.p_two_sided:.3g}")
+    ax.set(xlim=(-0.04, 1.04), ylim=(1.5, -0.7), xticks=[i / 5 for i in range(6)],
+           xlabel=f"success, 95% Wilson interval, on {c.a.rate.n} paired seeds (gold: significantly better)")
+    fig.suptitle(f"{title}\nexact paired test: two-sided p = {c.p_two_sided:.3g} (p A > B "
+                 f"{c.p_a_better:.3g}, p B > A {c.p_b_better:.3g})")
     _success_axis(ax)
     return _save(fig, path)
 

@@ -1,5 +1,5 @@
-"""The policies and tickets shipped inside the package, found by name without loading a model (a
-misspelt name is one line in a fraction of a second).
+"""The policies and tickets shipped inside the package, and policies on the Hugging Face Hub, found by
+name without loading a model (a misspelt name is one line in a fraction of a second).
 
 A policy name may end in `@N` to run with N denoising steps instead of the trained default, e.g.
 `metaworld/pick-place-v3/ddim@2`; the weights are the same, only inference changes.
@@ -62,19 +62,43 @@ def bundled(base: str) -> Path:
 
 def is_hub_id(base: str) -> bool:
     """Whether a policy name (without `@N`) is a Hugging Face Hub repo id, as `lerobot-eval
-    --policy.path=lerobot/smolvla_libero` takes one: `owner/name`, neither a path here, a bundled
-    policy's name nor an import string."""
+    --policy.path=lerobot/smolvla_libero` takes one: `owner/name`, neither a path here nor in a folder of
+    bundled policies (`metaworld/reach-v3` is a bundled name cut short)."""
+    families = {name.partition("/")[0] for name in policy_names()}
     return (HUB_ID.fullmatch(base) is not None and ".." not in base and not Path(base).exists()
-            and base not in policy_names())
+            and base.partition("/")[0] not in families)
 
 
 def check_name(name: object) -> None:
-    """UserError for a policy name that is neither an import string, a path, a Hub repo id nor a
-    bundled policy's name (a policy object passes)."""
+    """UserError for a policy name that is neither an import string, a path, a Hub repo id in the cache
+    or downloadable (`hub_snapshot`, which loads no model library) nor a bundled policy's name (a
+    policy object passes)."""
     if isinstance(name, str) and not is_import_string(name):
         base, _ = split_steps(name)
-        if not (Path(base).exists() or is_hub_id(base)):
+        if is_hub_id(base):
+            hub_snapshot(base)
+        elif not Path(base).exists():
             bundled(base)
+
+
+def hub_snapshot(repo_id: str) -> Path:
+    """The folder of Hugging Face Hub repo `repo_id` as LeRobot reads `--policy.path=<repo id>`:
+    huggingface_hub's `snapshot_download`, from its cache (HF_HOME, HF_HUB_CACHE; with HF_HUB_OFFLINE=1
+    the cache alone), downloading where a network is; one line naming `hf download` where neither
+    has it."""
+    try:
+        from huggingface_hub import constants, snapshot_download
+    except ImportError:
+        raise UserError(f"policy {repo_id!r} names a Hugging Face Hub repo, and huggingface_hub is not "
+                        "installed here (LeRobot's venv has it)") from None
+    try:
+        return Path(snapshot_download(repo_id))
+    except (OSError, ValueError) as error:
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise UserError(f"policy {repo_id!r} is no bundled policy (`goldenticket policies` lists them) nor "
+                        "folder here, and the Hugging Face Hub repo of that id is not in the cache "
+                        f"({constants.HF_HUB_CACHE}) nor downloadable ({reason}); download it where a "
+                        f"network is: `hf download {repo_id}`, or name its folder") from None
 
 
 def bundled_task(name: str) -> str | None:

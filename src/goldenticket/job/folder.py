@@ -35,7 +35,7 @@ def open_store(out: str | Path, plan: Plan) -> RunStore:
         "policy": names.policy, "task": names.task, "success": named(cfg.success),
         "policy_fingerprint": names.fingerprint, "halving": cfg.halves(),
         "workers": None, "backend": None, "address": None}  # as every run store spells them: old runs resume
-    for name in ("optimizer", "halving"):  # claimed as before they could be set, while unset
+    for name in ("optimizer", "halving", "rename_map", "policy_override"):  # unset: as before they existed
         if not config[name]:
             del config[name]
     if not store.claim_config(config):

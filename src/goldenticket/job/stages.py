@@ -1,6 +1,6 @@
-"""The job's stages, each one job: baselines, search, validation, verdict (and a Pareto front).
-Each takes the run's Plan and the open Evaluator and returns typed results; none writes files but
-the front's."""
+"""The job's stages, each one job: baselines, search, validation, verdict (and a Pareto front),
+each run from the run's Plan (with the open Evaluator where it runs episodes); none writes files
+but the front's."""
 
 from __future__ import annotations
 

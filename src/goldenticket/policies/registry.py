@@ -21,6 +21,7 @@ from goldenticket.zoo import (  # noqa: F401  (re-exported: the package's names)
     bundled_task,
     bundled_tickets,
     find_ticket,
+    hub_snapshot,
     is_hub_id,
     policy_names,
     split_steps,
@@ -65,25 +66,6 @@ def policy_folder(base: str) -> Path:
     """What a policy name (without `@N`) names on disk: a path here, else a Hub repo's snapshot, else
     the name as a path (a bundled policy's name)."""
     return hub_snapshot(base) if is_hub_id(base) else Path(base)
-
-
-def hub_snapshot(repo_id: str) -> Path:
-    """The folder of Hugging Face Hub repo `repo_id` as LeRobot reads `--policy.path=<repo id>`:
-    huggingface_hub's `snapshot_download`, from its cache (HF_HOME, HF_HUB_CACHE; with HF_HUB_OFFLINE=1
-    the cache alone), downloading where a network is; one line naming `hf download` where neither
-    has it."""
-    try:
-        from huggingface_hub import constants, snapshot_download
-    except ImportError:
-        raise UserError(f"policy {repo_id!r} names a Hugging Face Hub repo, and huggingface_hub is not "
-                        "installed here (LeRobot's venv has it)") from None
-    try:
-        return Path(snapshot_download(repo_id))
-    except (OSError, ValueError) as error:
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise UserError(f"policy {repo_id!r} is no folder here, and the Hugging Face Hub repo of that id is "
-                        f"not in the cache ({constants.HF_HUB_CACHE}) nor downloadable ({reason}); download "
-                        f"it where a network is: `hf download {repo_id}`, or name its folder") from None
 
 
 def for_task(policy: NoisePolicy, task) -> NoisePolicy:

@@ -9,7 +9,8 @@ actions come back through the saved postprocessor. A ticket is the model's initi
 (`diffusion.py`, `vla.py`); each call executes `n_action_steps` actions. On the CPU the model runs
 as LeRobot runs it, in float32, on fixed blocks of BLOCK rows on one torch thread: each row's
 actions are bitwise those LeRobot's own call gives for it in a batch of BLOCK envs, and do not
-depend on the other rows. LeRobot is imported only when such a folder is loaded.
+depend on the other rows. `with_ticket` (`loops.py`) runs a ticket inside LeRobot's own loops.
+LeRobot is imported only when such a folder is loaded.
 """
 
 from __future__ import annotations
@@ -18,9 +19,10 @@ from pathlib import Path
 
 from goldenticket.policies.lerobot.checkpoint import LeRobotPolicy, checked_config, is_checkpoint
 from goldenticket.policies.lerobot.diffusion import DiffusionPolicyAdapter
+from goldenticket.policies.lerobot.loops import with_ticket
 from goldenticket.policies.lerobot.vla import VLAPolicy
 
-__all__ = ["LeRobotPolicy", "checked_config", "is_checkpoint", "load"]
+__all__ = ["LeRobotPolicy", "checked_config", "is_checkpoint", "load", "with_ticket"]
 
 
 def load(path: str | Path, steps: int | None = None, name: str | None = None, device: str = "cpu",

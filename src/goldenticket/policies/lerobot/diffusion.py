@@ -7,6 +7,7 @@ import torch
 
 from goldenticket.errors import UserError
 from goldenticket.policies.lerobot.checkpoint import LeRobotPolicy
+from goldenticket.policies.lerobot.loops import noise_shape
 
 
 class DiffusionPolicyAdapter(LeRobotPolicy):
@@ -14,7 +15,7 @@ class DiffusionPolicyAdapter(LeRobotPolicy):
 
     @property
     def noise_shape(self) -> tuple[int, int]:
-        return self.cfg.horizon, self.cfg.action_feature.shape[0]
+        return noise_shape(self.cfg)
 
     @property
     def denoising_steps(self) -> int:

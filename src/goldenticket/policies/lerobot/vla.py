@@ -10,6 +10,7 @@ import copy
 import torch
 
 from goldenticket.policies.lerobot.checkpoint import LeRobotPolicy
+from goldenticket.policies.lerobot.loops import noise_shape
 
 
 class VLAPolicy(LeRobotPolicy):
@@ -17,7 +18,7 @@ class VLAPolicy(LeRobotPolicy):
 
     @property
     def noise_shape(self) -> tuple[int, int]:
-        return self.cfg.chunk_size, self.cfg.max_action_dim
+        return noise_shape(self.cfg)
 
     def instructed(self, instruction: str) -> VLAPolicy:
         """This policy given `instruction` (what LeRobot's eval passes as "task"); the model is shared."""
