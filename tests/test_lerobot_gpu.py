@@ -1,7 +1,9 @@
 """The GPU contract of a LeRobot policy, with nothing but LeRobot and one CUDA GPU: no simulator, so
-that it runs wherever a GPU and LeRobot are."""
+that it runs wherever a GPU and LeRobot are; and the GPU benchmark's whole path, on the CPU."""
 
 import importlib.util
+import json
+import subprocess
 import sys
 from pathlib import Path
 
@@ -10,11 +12,12 @@ import pytest
 
 from goldenticket.policies import load_policy
 
-sys.path.insert(0, str(Path(__file__).parents[1]))  # examples.*
+ROOT = Path(__file__).parents[1]
+sys.path.insert(0, str(ROOT))  # examples.*
 sys.path.insert(0, str(Path(__file__).parent))
 from lerobot_models import tiny_smolvla  # noqa: E402
 
-pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.gpu, pytest.mark.skipif(
+pytestmark = [pytest.mark.lerobot, pytest.mark.slow, pytest.mark.skipif(
     importlib.util.find_spec("lerobot") is None, reason="LeRobot is not installed (its own venv: README)")]
 CAMERAS, SIZE, ROWS = ("image", "image1"), 32, 4
 
@@ -26,6 +29,7 @@ def observations(rng: np.random.Generator) -> dict:
             "pixels": {c: rng.integers(0, 256, (ROWS, SIZE, SIZE, 3), dtype=np.uint8) for c in CAMERAS}}
 
 
+@pytest.mark.gpu
 def test_on_a_gpu_a_smolvla_gives_the_same_actions_every_time(tmp_path):
     """One machine, one GPU, the same noise: the same actions, call after call and load after load,
     and close to the CPU's."""
@@ -50,3 +54,28 @@ def test_on_a_gpu_a_smolvla_gives_the_same_actions_every_time(tmp_path):
     assert on_gpu[0].shape == (ROWS, 5, 4)
     on_cpu = load_policy(folder).instructed(instruction).act(obs, noise)
     np.testing.assert_allclose(on_gpu[0], on_cpu, atol=1e-3)
+
+
+def test_the_gpu_benchmark_runs_lerobots_loop_and_the_engine_on_both_paths_in_its_smoke_mode(tmp_path):
+    """`benchmarks/gpu_throughput.py --smoke`: a tiny SmolVLA on the CPU through the GPU run's whole path.
+    LeRobot's eval loop and the engine run the same episodes, and their ratio is recorded; the fast path
+    is measured at every batch of the exact one, and its actions differ from the exact ones, a little."""
+    run = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "gpu_throughput.py"), "--smoke",
+                          "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr[-3000:]
+    result = json.loads((tmp_path / "gpu_throughput.json").read_text())
+    assert result["finished"] and result["device"] == "cpu (--smoke)"
+    rows = result["rows"]
+    [lerobot] = [row for row in rows if row.get("loop") == "lerobot eval_policy"]
+    engine = {(row["path"], row["env_workers"]): row for row in rows
+              if row.get("loop") == "goldenticket engine"}
+    assert set(engine) == {("exact", 1), ("fast", 1), ("exact", 4)}
+    assert all(row["episodes"] == lerobot["episodes"] for row in engine.values())
+    for path in ("exact", "fast"):
+        ratio = engine[path, 1]["episodes_per_s"] / lerobot["episodes_per_s"]
+        assert result["vs_lerobot"]["smolvla"][path] == engine[path, 1]["vs_lerobot"] == pytest.approx(ratio)
+    calls = {path: [row for row in rows if row.get("path") == path and "batch" in row]
+             for path in ("exact", "fast")}
+    assert [row["batch"] for row in calls["fast"]] == [row["batch"] for row in calls["exact"]] == [1, 2, 4]
+    assert all(0 < row["max_abs_action_diff"] < 0.1 * row["max_abs_action"] for row in calls["fast"])
+    assert "x the episodes/s of LeRobot's eval_policy on the same 8 episodes" in run.stdout
