@@ -222,9 +222,14 @@ def dsrl_model(variant: str, env: NoiseSpaceEnv, path: Path | None):
         from dsrl_na import NoiseAliasingSAC as algorithm
         attached = {"chunk_of": env.chunks}
         built = NA | {"chunk_dim": env.chunk_dim, "noise_magnitude": NOISE_MAGNITUDE}
+    from stable_baselines3.common.logger import Logger
+
     if path is not None:
-        return algorithm.load(path, env=env, device="cpu", **attached)
-    return algorithm("MlpPolicy", env, seed=0, device="cpu", **SAC, **attached, **built)
+        model = algorithm.load(path, env=env, device="cpu", **attached)
+    else:
+        model = algorithm("MlpPolicy", env, seed=0, device="cpu", **SAC, **attached, **built)
+    model.set_logger(Logger(None, []))  # SB3's own logs nowhere (its default makes a folder in /tmp)
+    return model
 
 
 def dsrl_curve(pair: str, variant: str, minutes: float, folder: Path) -> list[dict]:

@@ -166,8 +166,10 @@ QUICK_SAC = {"learning_starts": 10, "gradient_steps": 1, "batch_size": 16, "buff
 
 
 @pytest.fixture
-def one_torch_thread():
-    """A tiny net trains faster on one torch thread than on two busy cores."""
+def one_torch_thread(tmp_path_factory, monkeypatch):
+    """A tiny net trains faster on one torch thread than on two busy cores (and SB3's logs go to a test
+    folder, not to a new folder in /tmp)."""
+    monkeypatch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3")))
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     yield

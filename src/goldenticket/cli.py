@@ -429,12 +429,13 @@ def _evaluate(args) -> int:
     best = max(candidates, key=lambda t: (candidates[t].rate.success_rate, -candidates[t].p_vs_base))
     if args.plot is not None:
         task = cfg.task or found_under([Ticket.load(p) for p in paths], {"task": None})["task"]
-        title = f"{cfg.policy} on {task}, seeds {cfg.seeds.start}:{cfg.seeds.stop}"
+        title = f"{cfg.policy} on {task}, seeds {min(cfg.seeds)}:{max(cfg.seeds) + 1}"
         arms_png(table.rows(), args.plot, title, best=best.label)
     if args.json:
         print(json.dumps(to_dicts(rows), indent=2))
     else:
-        print(verdict_text(table, candidates[best], best.key, p_value_note(table.adjusted_over)))
+        name = "w = 0, the zero ticket" if best == ZERO else best.key
+        print(verdict_text(table, candidates[best], name, p_value_note(table.adjusted_over)))
         if cfg.mixture:
             spread = ", ".join(f"{label} {r.diversity:.3f}" for label, r in table.rows().items())
             print("diversity (RMS spread of executed actions across 5 noise streams from each of the first "
