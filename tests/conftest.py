@@ -29,6 +29,14 @@ def tiny_policies(tmp_path_factory) -> dict[str, MLPPolicy]:
     return out
 
 
+@pytest.fixture(scope="module")
+def policy_dir(tiny_policies, tmp_path_factory) -> str:
+    """The tiny flow policy saved as a policy folder."""
+    path = tmp_path_factory.mktemp("policy")
+    tiny_policies["flow"].save(path)
+    return str(path)
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)

@@ -12,13 +12,6 @@ from goldenticket.tickets import ZERO_SOURCE, Ticket, TicketRecord
 TASK = "metaworld/pick-place-v3"
 
 
-@pytest.fixture(scope="module")
-def policy_dir(tiny_policies, tmp_path_factory):
-    path = tmp_path_factory.mktemp("policy")
-    tiny_policies["flow"].save(path)
-    return str(path)
-
-
 def _search(policy_dir, out, workers):
     return main(["search", "--policy", policy_dir, "--task", TASK, "--method", "cem-racing",
                  "--budget", "12", "--search-seeds", "5", "--validation-seeds", "3", "--heldout", "4",

@@ -168,13 +168,6 @@ def test_a_forged_finalist_name_writes_nothing_outside_the_folder(tmp_path):
     assert not (tmp_path / "x.safetensors").exists()
 
 
-@pytest.fixture(scope="module")
-def policy_dir(tiny_policies, tmp_path_factory):
-    path = tmp_path_factory.mktemp("policy")
-    tiny_policies["flow"].save(path)
-    return str(path)
-
-
 def test_search_refuses_a_symlinked_tickets_folder_before_any_episode(policy_dir, tmp_path, capsys):
     out, elsewhere = tmp_path / "run", tmp_path / "elsewhere"
     elsewhere.mkdir()

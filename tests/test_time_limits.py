@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from byo_example import BiasedController, PointReach
-from test_worker_failures import _own_process
+from test_worker_failures import _driven, _own_process
 
 from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator
@@ -95,16 +95,9 @@ def evaluate_into(store: str, workers: int, step_timeout: float | None = 1.0) ->
         Evaluator(engine, RunStore(store)).run([("base", Gaussian(), SEEDS[:16]), ("zero", zero, SEEDS[16:])])
 
 
-def _driven(call: str, hang: str) -> subprocess.CompletedProcess:
-    """`call` of this module in a process of its own with HANG set; a UserError is its one line, exit 2."""
-    code = ("import sys, test_time_limits as t\n"
-            "from goldenticket.errors import UserError\n"
-            "try:\n"
-            f"    t.{call}\n"
-            "except UserError as exc:\n"
-            "    print(exc, file=sys.stderr)\n"
-            "    sys.exit(2)\n")
-    return _own_process([sys.executable, "-c", code], timeout=120, cwd=HERE, env=os.environ | {HANG: hang})
+def _hung(call: str, hang: str) -> subprocess.CompletedProcess:
+    """`call` of this module in a process of its own with HANG set (test_worker_failures' `_driven`)."""
+    return _driven(call, "test_time_limits", env=os.environ | {HANG: hang})
 
 
 def _episodes(store: Path) -> list[tuple]:
@@ -130,7 +123,7 @@ HANGS = {  # what hangs -> (its line, the episodes recorded before it: base, zer
 def test_a_call_that_never_returns_ends_the_run_in_one_line_and_a_rerun_resumes(tmp_path, monkeypatch, hang,
                                                                                 workers):
     store = tmp_path / "run.sqlite"
-    proc = _driven(f"evaluate_into({str(store)!r}, {workers})", hang)
+    proc = _hung(f"evaluate_into({str(store)!r}, {workers})", hang)
     call, recorded = HANGS[hang]
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr == f"{call} did not return within step_timeout 1 s {LIMIT_NOTE}\n"

@@ -74,16 +74,17 @@ def _own_process(args: list[str], timeout: float, **kwargs) -> subprocess.Comple
     return subprocess.CompletedProcess(args, proc.returncode, stdout, stderr)
 
 
-def _driven(call: str) -> subprocess.CompletedProcess:
-    """`call` of this module in a process of its own; a UserError is its one line and exit code 2."""
-    code = ("import sys, test_worker_failures as t\n"
+def _driven(call: str, module: str = "test_worker_failures", **kwargs) -> subprocess.CompletedProcess:
+    """`call` of the test `module` in a process of its own (`kwargs`: Popen's, e.g. env); a UserError
+    is its one line and exit code 2."""
+    code = (f"import sys, {module} as t\n"
             "from goldenticket.errors import UserError\n"
             "try:\n"
             f"    t.{call}\n"
             "except UserError as exc:\n"
             "    print(exc, file=sys.stderr)\n"
             "    sys.exit(2)\n")
-    return _own_process([sys.executable, "-c", code], timeout=120, cwd=HERE)
+    return _own_process([sys.executable, "-c", code], timeout=120, cwd=HERE, **kwargs)
 
 
 @pytest.mark.slow
