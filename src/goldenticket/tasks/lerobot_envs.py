@@ -137,12 +137,16 @@ class LeRobotEnvTask:
     @property
     def observation_shapes(self) -> dict[str, tuple[int, ...]]:
         """The observations a policy is given, keyed as LeRobot's `preprocess_observation` keys them,
-        with their shapes (frames channel first), read from LeRobot's env config: no env is built."""
+        with their shapes (frames channel first), read from LeRobot's env config: no env is built. A
+        frame's size is left out (its channels alone) where the config does not hand the env the size it
+        declares (PushT's declares 384 x 384 and gym-pusht renders 96 x 96): it is known once it renders."""
         from lerobot.envs.utils import env_to_policy_features
-        from lerobot.utils.constants import ACTION, OBS_STATE
+        from lerobot.utils.constants import ACTION, OBS_IMAGE, OBS_STATE
 
         features = env_to_policy_features(self.config)
         shapes = {key: tuple(f.shape) for key, f in features.items() if key != ACTION}
+        if not {"observation_height", "observation_width"} <= set(self.config.gym_kwargs):
+            shapes = {key: shape[:1] if key.startswith(OBS_IMAGE) else shape for key, shape in shapes.items()}
         if self.is_libero:  # one state, as LeRobot's LIBERO processor makes it of the robot's (LiberoTaskEnv)
             shapes = {key: shape for key, shape in shapes.items() if not key.startswith(OBS_STATE)}
             shapes[OBS_STATE] = (8,)

@@ -27,7 +27,8 @@ class DiffusionPolicyAdapter(LeRobotPolicy):
 
     def _check_cameras(self, cameras: dict[str, tuple[int, ...]]) -> None:
         """Every camera of the policy, its frames of the size its image encoder takes: any size where
-        it resizes them (`resize_shape`), at least its `crop_shape` where it crops them, else its own."""
+        it resizes them (`resize_shape`), at least its `crop_shape` where it crops them, else its own; a
+        camera given by its channels alone (its size is known once the env renders) by its channels."""
         crop = self.cfg.crop_shape
         for key, feature in self.cfg.image_features.items():
             wanted, given = tuple(feature.shape), cameras.get(key)
@@ -35,6 +36,7 @@ class DiffusionPolicyAdapter(LeRobotPolicy):
                 raise UserError(f"policy {self.name!r} reads camera {key!r}, and the env's cameras are "
                                 f"{sorted(cameras)}; map one to it with rename_map (--rename-map "
                                 f"ENV_KEY={key})")
+            given = given + wanted[len(given):]  # a size not known yet: the one the policy takes
             sized = given[1] >= crop[0] and given[2] >= crop[1] if crop else given[1:] == wanted[1:]
             if given[0] != wanted[0] or not (self.cfg.resize_shape is not None or sized):
                 takes = f"at least {crop[0]}x{crop[1]} (its crop)" if crop else f"{wanted[1]}x{wanted[2]}"
