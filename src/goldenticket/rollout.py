@@ -12,6 +12,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 import torch
@@ -88,9 +89,8 @@ def _rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode], objec
     live, executed = list(range(n)), [[] for _ in range(n)]
     while live:
         noise = np.stack([samplers[i]() for i in live])
-        batch_seeds = ", ".join(dict.fromkeys(str(episodes[i].seed) for i in live))
-        actions = limit.call(policy.act, acting, f"task {task.name!r}, seeds {batch_seeds}",
-                             stack([observed(recent[i]) for i in live]), noise)
+        batch = partial(_seeds_of, task.name, episodes, list(live))  # said only if the call runs too long
+        actions = limit.call(policy.act, acting, batch, stack([observed(recent[i]) for i in live]), noise)
         chunks = checked_actions(policy, actions, len(live))
         for i, chunk, finite in zip(live, chunks, np.isfinite(chunks).all(axis=(1, 2)), strict=True):
             if not finite:
@@ -118,6 +118,11 @@ def _rollout(policy: NoisePolicy, task: Task, episodes: Sequence[Episode], objec
     return [EpisodeResult(ep.seed, bool(success[i]), returns[i], int(length[i]), wall,
                           np.array(executed[i]) if record_actions else None, causes[i], digests[i])
             for i, ep in enumerate(episodes)]
+
+
+def _seeds_of(task: str, episodes: Sequence[Episode], batch: list[int]) -> str:
+    """Where a batched policy call was: the task and its episodes' seeds."""
+    return f"task {task!r}, seeds {', '.join(str(episodes[i].seed) for i in batch)}"
 
 
 def _progress(env, success: bool, task: str, limit: TimeLimit, on_seed: str) -> float:
@@ -168,8 +173,9 @@ class TimeLimit:
         self.seconds = seconds or None
         self._running, self._started = ("", ""), math.inf  # the call timed (what, where), and since when
 
-    def call(self, fn: Callable, what: str, where: str, *args):
-        """`call_users(fn, what, *args)`, timed; `where`: the episodes it is for (`task 'x', seed 3`)."""
+    def call(self, fn: Callable, what: str, where: str | Callable[[], str], *args):
+        """`call_users(fn, what, *args)`, timed; `where`: the episodes it is for (`task 'x', seed 3`), or a
+        function saying it, called only if the call runs too long."""
         self._running, self._started = (what, where), time.monotonic()
         try:
             return call_users(fn, what, *args)
@@ -188,6 +194,7 @@ class TimeLimit:
                 yield
         except CallTimedOut:
             what, where = self._running
+            where = where() if callable(where) else where
             raise CallTimedOut(f"{what} on {where} did not return within step_timeout {self.seconds:g} s (a "
                                "slow simulator or model needs a larger one; 0: no limit)") from None
 
