@@ -13,7 +13,6 @@ every check before any episode, `evaluate` the task's and the first).
 
 from __future__ import annotations
 
-import pickle
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -187,8 +186,7 @@ def episodes_in_another_process(task) -> list[Episode]:
     process: a fresh process starts from nothing, so it sees the same each time (the job on each of
     several tasks, or an evaluation after a search, reuse it)."""
     what = f"task {task.name!r}"
-    picklable(task, what)
-    sent = pickle.dumps(task)
+    sent = picklable(task, what)
     if sent not in _elsewhere:
         _elsewhere[sent] = in_another_process(episodes, task, CHECK_SEEDS, CHECK_STEPS, what=what)
     return _elsewhere[sent]

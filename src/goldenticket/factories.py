@@ -95,11 +95,11 @@ def import_name(obj) -> str:
     return f"{module}:{target.__qualname__}"
 
 
-def picklable(obj, what: str) -> None:
-    """UserError unless `obj` can be sent to a worker process (pickled by reference to an
-    importable module, as multiprocessing does)."""
+def picklable(obj, what: str) -> bytes:
+    """`obj` pickled (by reference to an importable module, as multiprocessing does); UserError if it
+    cannot be sent to a worker process."""
     try:
-        pickle.dumps(obj)
+        return pickle.dumps(obj)
     except Exception as exc:  # pickle raises several types for a lambda, a local or a lock
         raise UserError(f"{what} cannot be sent to a worker process ({type(exc).__name__}: {exc}); "
                         "define it at module level, or name it by an import string") from None
@@ -119,8 +119,7 @@ def in_another_process(fn, *args, what: str):
     """`fn(*args)` in a fresh process, the way worker processes rebuild the user's objects: a new
     interpreter when nothing sent comes from the main script (a script read from standard input, or
     one with no `__main__` guard, may call it then), else a spawned process, which re-runs it."""
-    picklable(args, what)
-    sent = pickle.dumps((fn, args))
+    sent = picklable((fn, args), what)
     if b"__main__" not in sent:
         return _in_new_interpreter(sent, what)
     spawnable(f"{what}: another process")
