@@ -386,7 +386,7 @@ def test_absurd_requests_and_a_full_disk_get_a_json_error(tmp_path):
     nested = client.post("/api/score", content=b"[" * 30000 + b"]" * 30000,
                          headers={"Content-Type": "application/json"})
     assert nested.status_code == 400 and "JSON" in nested.json()["error"]
-    con = client.app.state.session._con  # the store may grow no more: a full disk, for SQLite
+    con = client.app.state.session._store.con  # the store may grow no more: a full disk, for SQLite
     con.execute(f"PRAGMA max_page_count = {con.execute('PRAGMA page_count').fetchone()[0]}")
     full = client.post("/api/score", json={"episode": 0, "success": True, "note": "x" * 60000})
     assert full.status_code == 503 and "full" in full.json()["error"]

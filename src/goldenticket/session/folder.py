@@ -10,7 +10,6 @@ the session is opened or asked what is due.
 
 from __future__ import annotations
 
-import sqlite3
 from pathlib import Path
 
 from goldenticket.errors import UserError
@@ -118,11 +117,6 @@ class Session:
         names included: for the record, not for the operator's screen)."""
         self._refresh()
         return self._store.rows()
-
-    @property
-    def _con(self) -> sqlite3.Connection:
-        """The store's open connection."""
-        return self._store.con
 
     def _refresh(self) -> dict:
         """Plan the next round or the confirm phase if due, bring the derived files in line with
