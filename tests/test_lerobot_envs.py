@@ -16,6 +16,7 @@ from goldenticket.errors import UserError
 from goldenticket.policies import load_policy
 from goldenticket.tasks import get_task
 from goldenticket.tasks.base import observation_digest
+from goldenticket.tickets import Ticket
 
 sys.path.insert(0, str(Path(__file__).parent))
 from lerobot_models import tiny_smolvla  # noqa: E402
@@ -251,3 +252,28 @@ def test_a_diffusion_policy_on_frames_its_encoder_cannot_take_is_one_line_before
         errors = capsys.readouterr().err.strip().splitlines()
         assert len(errors) == 1 and "'observation.images.image' gives 3 x 360x360 frames" in errors[0], errors
         assert "image encoder takes 3 x 96x96, without resizing them" in errors[0]
+
+
+def test_env_options_set_liberos_cameras_and_control_mode_and_the_tickets_keep_them(tmp_path, monkeypatch):
+    """--env-option observation_height/width=128: 128 x 128 frames, declared and drawn, so a diffusion policy
+    on 128 x 128 cameras passes the size check; control_mode=absolute: LeRobot's LiberoEnv moves the arm to
+    absolute targets. A search runs with them and records them in its tickets."""
+    options = {"control_mode": "absolute", "observation_height": 128, "observation_width": 128}
+    task = get_task("libero/object/0", STEPS, env_options=options)
+    assert task.observation_shapes["observation.images.image2"] == (3, 128, 128)
+    env = task.make_env()
+    frames = env.reset(1_000_000)["pixels"]
+    assert [frames[key].shape for key in ("image", "image2")] == [(128, 128, 3)] * 2
+    assert env._env.control_mode == "absolute" and not env._env._env.robots[0].controller.use_delta
+    for kind in ("POLICY_CHECKS", "TASK_CHECKS"):  # the checks that build scenes: other tests run them
+        monkeypatch.setattr(checks, kind, {})
+    size = (3, 128, 128)
+    folder = str(diffusion(tmp_path / "policy", 8, 7, {"observation.images.image": size,
+                                                       "observation.images.image2": size}, 1.0))
+    flags = [f"--env-option={key}={value}" for key, value in options.items()]
+    out = tmp_path / "run"
+    assert main(["search", "--policy", folder, "--task", "libero/object/0", *flags, "--max-steps", "2",
+                 "--method", "rs", "--budget", "1", "--search-seeds", "1", "--validation-seeds", "0",
+                 "--heldout", "1", "--top-k", "1", "--workers", "1", "--out", str(out)]) == 0
+    ticket = next((out / "tickets").glob("*.safetensors"))
+    assert Ticket.load(ticket).metadata["env_option"] == options

@@ -2,6 +2,7 @@
 unknown-task line is built from the families registered."""
 
 import dataclasses
+import pickle
 from dataclasses import dataclass
 
 import pytest
@@ -96,3 +97,49 @@ def test_unknown_names_list_every_family(built, task):
     with pytest.raises(UserError) as unknown:
         get_task(task)
     assert str(unknown.value) == UNKNOWN.replace("'metaworld/x'", repr(task))
+
+
+def test_a_libero_task_is_built_with_the_env_options_it_takes(built):
+    options = {"control_mode": "absolute", "observation_height": 128, "observation_width": 1024}
+    assert get_task("libero/object/0", env_options=options) == ("LeRobot", "libero/object/0",
+                                                                {"env_options": options})
+    assert get_task("libero/object/0", env_options={}) == ("LeRobot", "libero/object/0", {})
+    task = LeRobotEnvTask("libero/object/0", 6, options)  # as workers get it: pickled
+    assert pickle.loads(pickle.dumps(task)).env_options == options
+
+
+@pytest.mark.parametrize(("task", "options", "says"), [
+    ("metaworld/reach-v3", {"control_mode": "absolute"}, "env_option applies to LeRobot tasks; "
+                                                         "'metaworld/reach-v3' takes none"),
+    ("x:y", {"observation_height": 96}, "env_option applies to LeRobot tasks; 'x:y' takes none"),
+    ("pusht", {"observation_height": 96}, "env_option observation_height: pusht takes none (LeRobot's "
+                                          "config for it hands its env no camera size"),
+    ("libero/object/0", {"camera_name": "agentview_image"}, "unknown env_option 'camera_name'; LIBERO "
+     "tasks take control_mode, observation_height, observation_width"),
+    ("libero/object/0", {"control_mode": "abs"}, "env_option control_mode must be relative or absolute, "
+                                                 "got 'abs'"),
+    *[("libero-listed/goal/3", {"observation_width": size}, "env_option observation_width must be an integer "
+       f"from 1 to 1024 (pixels), got {size!r}") for size in (0, 1025, 128.0, True, "128")],
+])
+def test_env_options_a_task_does_not_take_are_one_line_before_it_is_built(built, task, options, says):
+    with pytest.raises(OptionError) as refused:
+        get_task(task, env_options=options)
+    assert str(refused.value).startswith(says) and refused.value.names == ("env_option",)
+    if task.startswith("libero"):  # the task itself checks them too, before LeRobot is imported
+        with pytest.raises(OptionError, match="env_option"):
+            LeRobotEnvTask(task, env_options=options)
+
+
+def test_a_bad_env_option_is_one_line_before_anything_loads(monkeypatch, tmp_path, capsys):
+    from goldenticket import job
+    from goldenticket.cli import main
+    from goldenticket.job import evaluate
+
+    for module in (job, evaluate):
+        monkeypatch.setattr(module, "load_policy", lambda *_, **__: pytest.fail("the policy was loaded"))
+    for command in (["evaluate", "--seeds", "1000000:1000002"], ["search", "--out", str(tmp_path / "run")]):
+        assert main([*command, "--policy", "metaworld/reach-v3/flow", "--task", "libero/object/0",
+                     "--env-option", "control_mode=absolute", "--env-option", "observation_height=4096"]) == 2
+        errors = capsys.readouterr().err.strip().splitlines()
+        assert errors == ["goldenticket: error: --env-option observation_height must be an integer from 1 to "
+                          "1024 (pixels), got 4096"]

@@ -9,8 +9,8 @@ from goldenticket.errors import UserError
 from goldenticket.tickets import Ticket
 
 
-def _saved(tmp_path, metadata: dict):
-    path = tmp_path / "t.safetensors"
+def _saved(tmp_path, metadata: dict, name: str = "t"):
+    path = tmp_path / f"{name}.safetensors"
     save_file({"noise": np.zeros((8, 4), np.float32)}, str(path),
               metadata={"goldenticket": json.dumps(metadata)})
     return path
@@ -41,3 +41,26 @@ def test_metadata_with_terminal_control_codes_is_refused_without_printing_them(t
         out, err = capsys.readouterr()
         assert "\x1b" not in out + err and "\x07" not in out + err
         assert err.count("\n") == 1 and "printable" in err
+
+
+def test_evaluate_runs_a_ticket_under_the_env_options_it_was_found_with(tmp_path, monkeypatch, capsys):
+    """As its rename_map and policy_override: the ticket's env_option where evaluate is given none, the
+    one given where it is; tickets found under different ones need one given."""
+    from goldenticket.job import evaluate
+
+    def built(task, max_steps, success, env_options):
+        raise UserError(f"built {task} with {env_options}")
+
+    monkeypatch.setattr(evaluate, "get_task", built)
+    found = {"control_mode": "absolute", "observation_height": 128}
+    ticket = str(_saved(tmp_path, {"task": "libero/object/0", "env_option": found}))
+    relative = {"task": "libero/object/0", "env_option": {"control_mode": "relative"}}
+    other = str(_saved(tmp_path, relative, "u"))
+    for tickets, given, says in (([ticket], [], f"built libero/object/0 with {found}"),
+                                 ([ticket], ["--env-option", "control_mode=relative"],
+                                  "built libero/object/0 with {'control_mode': 'relative'}"),
+                                 ([ticket, other], [], "the tickets were found under different --env-option; "
+                                                       "give --env-option")):
+        argv = ["evaluate", "--policy", "metaworld/reach-v3/flow", "--seeds", "1000000:1000002", *given]
+        assert main(argv + [arg for path in tickets for arg in ("--ticket", path)]) == 2
+        assert capsys.readouterr().err == f"goldenticket: error: {says}\n"

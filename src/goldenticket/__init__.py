@@ -70,7 +70,8 @@ def compare(policy, against, task=None, seeds: Iterable[int] = range(1_000_000, 
     resumes. `task`, `max_steps` and `success` default to those the tickets were found under, the
     task else to the one the bundled policies were trained on. `options`: the other fields of
     `config.CompareConfig` (ticket, against_ticket, seed, max_steps, success, allow_transfer,
-    rename_map, policy_override, workers, backend, address, max_nonfinite, device, step_timeout)."""
+    rename_map, policy_override, env_option, workers, backend, address, max_nonfinite, device,
+    step_timeout)."""
     from goldenticket.config import CompareConfig, make
     from goldenticket.job.compare import compare_policies
 

@@ -346,14 +346,15 @@ def _search(args) -> int:
 
 
 def _check_names(options: dict) -> None:
-    """A misspelt policy or task name answers before any model or simulator loads."""
+    """A misspelt policy or task name, or an env option the task does not take, answers before any
+    model or simulator loads."""
     check_name(options.get("policy"))
     tasks = options.get("task")
     if tasks is not None:
         from goldenticket.tasks.registry import check_task
 
         for task in tasks if isinstance(tasks, list | tuple) else [tasks]:
-            check_task(task)
+            check_task(task, options.get("env_option"))
 
 
 def _with_bundled_task(options: dict) -> dict:
@@ -408,7 +409,7 @@ def _run_search(cfg, out: Path) -> int:
 def _evaluate(args) -> int:
     cfg = make(EvaluateConfig, _options(args, EvaluateConfig))
     cfg.check()  # a bad option, policy or task name or ticket answers before anything loads
-    _check_names({"policy": cfg.policy, "task": cfg.task})
+    _check_names({"policy": cfg.policy, "task": cfg.task, "env_option": cfg.env_option})
     paths = [find_ticket(ref) for ref in cfg.tickets]
     _check_plot(args.plot)
     from goldenticket.evaluation import BASE, MIXTURE, ZERO, Kind, p_value_note, to_dicts
@@ -448,7 +449,7 @@ def _evaluate(args) -> int:
 def _compare(args) -> int:
     cfg = make(CompareConfig, _options(args, CompareConfig))
     cfg.check()  # a bad option, policy or task name or ticket answers before anything loads
-    _check_names({"policy": cfg.policy, "task": cfg.task})
+    _check_names({"policy": cfg.policy, "task": cfg.task, "env_option": cfg.env_option})
     check_name(cfg.against)
     for ref in (cfg.ticket, cfg.against_ticket):
         if ref is not None:
@@ -493,7 +494,7 @@ def _check(args) -> int:
     from goldenticket.tasks import get_task
 
     policy = load_policy(cfg.policy, cfg.device, **cfg.policy_settings())
-    task = get_task(cfg.task, success=cfg.success)
+    task = get_task(cfg.task, success=cfg.success, env_options=cfg.env_option)
     ran = []
     for result in results(task, policy):
         print(result, flush=True)

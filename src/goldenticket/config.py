@@ -44,13 +44,13 @@ SUCCESS_HELP = ("Gymnasium tasks: package.module:function(obs, info) -> bool dec
 HALVING_UP_TO = 1100  # search episodes up to which halving is the default (the budget curve's rule)
 
 
-RECORDED_SETTINGS = ("rename_map", "policy_override")  # PolicySettings' fields, as tickets record them
+RECORDED_SETTINGS = ("rename_map", "policy_override", "env_option")  # PolicySettings', as tickets record them
 
 
 @dataclass(frozen=True, kw_only=True)
 class PolicySettings:
-    """How a LeRobot checkpoint runs on a task, as `lerobot-eval` takes it (its --rename_map and
-    --policy.KEY=VALUE); tickets record them."""
+    """How a LeRobot checkpoint runs on a task, as `lerobot-eval` takes it (its --rename_map,
+    --policy.KEY=VALUE and --env.KEY=VALUE); tickets record them."""
 
     rename_map: dict | None = option(
         None, "LeRobot checkpoints: an env's observation key renamed to the policy's, as lerobot-eval's "
@@ -60,6 +60,10 @@ class PolicySettings:
         None, "LeRobot checkpoints: a setting of its config.json changed for this run, as lerobot-eval's "
         "--policy.KEY=VALUE: n_action_steps=N (actions executed per call)", key_values=True,
         metavar="KEY=VALUE")
+    env_option: dict | None = option(
+        None, "LeRobot's LIBERO tasks: a setting of the env's LeRobot config, as lerobot-eval's "
+        "--env.KEY=VALUE: control_mode=relative|absolute, observation_height=N, observation_width=N (the "
+        "cameras' size, 360 by default); repeat for several", key_values=True, metavar="KEY=VALUE")
 
     def policy_settings(self) -> dict:
         """The given ones, as `load_policy` takes them (rename_map, overrides)."""

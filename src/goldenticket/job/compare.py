@@ -61,7 +61,7 @@ def compare_policies(cfg: CompareConfig, out: str | Path | None = None) -> Compa
     seeds = list(cfg.seeds)
     sides = _sides(cfg)
     settings = _settings(cfg, [side.ticket for side in sides if side.ticket is not None])
-    task = get_task(settings["task"], settings["max_steps"], settings["success"])
+    task = get_task(settings["task"], settings["max_steps"], settings["success"], cfg.env_option)
     for side in sides:
         _check_ticket(cfg, side, task.name, seeds)
     for policy in dict.fromkeys(side.policy for side in sides):  # each acts on the task (A and B need
@@ -155,12 +155,13 @@ def _run(cfg: CompareConfig, sides: tuple[Side, Side], task, seeds: list[int], o
 
 def _claim(cfg: CompareConfig, sides: tuple[Side, Side], task, success: str | None) -> dict:
     """What fixes a comparison's episodes, as its run store holds it: each arm's policy (its name and
-    identity) and ticket, the task and its settings, the noise seed, a LeRobot checkpoint's settings;
-    not the seeds (a rerun on more seeds reads back those run)."""
+    identity) and ticket, the task and its settings, the noise seed, a LeRobot checkpoint's and env's
+    settings; not the seeds (a rerun on more seeds reads back those run)."""
     arms = [{"policy": policy_label(side.ref), "policy_fingerprint": identity(side.policy),
              "ticket": side.ticket_id} for side in sides]
+    env = {"env_option": cfg.env_option} if cfg.env_option else {}
     return {"compare": arms, "task": task.name, "max_steps": task.max_steps, "success": success,
-            "seed": cfg.seed} | cfg.policy_settings()
+            "seed": cfg.seed} | cfg.policy_settings() | env
 
 
 @contextmanager

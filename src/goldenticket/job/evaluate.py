@@ -41,7 +41,7 @@ def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict
               for path in map(find_ticket, cfg.tickets)}
     given = {"task": cfg.task, "max_steps": cfg.max_steps, "success": cfg.success}
     settings = found_under(list(loaded.values()), given, cfg.allow_transfer)
-    task = get_task(settings["task"], settings["max_steps"], settings["success"])
+    task = get_task(settings["task"], settings["max_steps"], settings["success"], cfg.env_option)
     names = Names.of(cfg.policy, policy, task.name)
     for path, ticket in loaded.items():
         if not cfg.allow_transfer:
@@ -69,8 +69,8 @@ def evaluate_tickets(cfg: EvaluateConfig, store: RunStore | None = None) -> dict
 
 
 def with_recorded_settings(cfg: EvaluateConfig) -> EvaluateConfig:
-    """`cfg` with the rename_map and policy_override its tickets were found under, where it gives none;
-    OptionError where the tickets record different ones."""
+    """`cfg` with the rename_map, policy_override and env_option its tickets were found under, where
+    it gives none; OptionError where the tickets record different ones."""
     tickets = {ref: Ticket.load(find_ticket(ref)) for ref in cfg.tickets}
     recorded = {}
     for key in RECORDED_SETTINGS:

@@ -7,7 +7,7 @@ import json
 from dataclasses import fields
 from pathlib import Path
 
-from goldenticket.config import SearchConfig, named, to_toml
+from goldenticket.config import RECORDED_SETTINGS, SearchConfig, named, to_toml
 from goldenticket.errors import UserError
 from goldenticket.evaluation import BASE, ZERO, Arm, Verdict, VerdictRow, multitask_verdict
 from goldenticket.files import open_folder, write_atomic
@@ -35,7 +35,7 @@ def open_store(out: str | Path, plan: Plan) -> RunStore:
         "policy": names.policy, "task": names.task, "success": named(cfg.success),
         "policy_fingerprint": names.fingerprint, "halving": cfg.halves(),
         "workers": None, "backend": None, "address": None}  # as every run store spells them: old runs resume
-    for name in ("optimizer", "halving", "rename_map", "policy_override"):  # unset: as before they existed
+    for name in ("optimizer", "halving", *RECORDED_SETTINGS):  # unset: as before they existed
         if not config[name]:
             del config[name]
     if not store.claim_config(config):

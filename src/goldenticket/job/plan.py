@@ -111,7 +111,7 @@ def checked_tasks(policy: NoisePolicy, cfg: SearchConfig) -> list:
     """The run's tasks, each one passing every check of `goldenticket.checks` with the policy (the
     policy acts on it and answers its noise, the same seed gives the same episode): UserError now,
     not mid-run."""
-    tasks = [get_task(name, cfg.max_steps, cfg.success) for name in cfg.tasks]
+    tasks = [get_task(name, cfg.max_steps, cfg.success, cfg.env_option) for name in cfg.tasks]
     if len({t.name for t in tasks}) < len(tasks):
         raise OptionError("a task is given twice", "task")
     for task in tasks:

