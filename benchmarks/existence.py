@@ -87,16 +87,17 @@ def run_folder(runs: Path, policy: str) -> Path:
     return runs / policy.removeprefix("metaworld/").replace("/", "_")
 
 
-def run_pair(task: str, policy: str, runs: Path, workers: int, **changed) -> dict:
+def run_pair(task: str, policy: str, runs: Path, workers: int, fresh_ranges: int = len(FRESH_RANGES),
+             **changed) -> dict:
     """Search and judge one pair with SETTINGS, or with the `changed` ones (e.g. a budget); its best
-    ticket is then re-judged on fresh held-out seeds."""
+    ticket is then re-judged on the first `fresh_ranges` ranges of fresh held-out seeds."""
     out, start = run_folder(runs, policy), time.perf_counter()
     cfg = SearchConfig(policy, task, workers=workers, **SETTINGS | changed)
     summary = find_golden_tickets(cfg, out).to_dict() | {"halving": cfg.halves()}
     with RunStore(out / "run.sqlite") as store:
         summary["validation_episodes"] = len(store.episodes(seed_set="validation"))
     best = summary["best"]
-    for i, key in enumerate(FRESH_RANGES):
+    for i, key in enumerate(FRESH_RANGES[:fresh_ranges]):
         best[key] = fresh_check(Path(best["ticket_path"]), policy, task, out, workers, i)
     return summary | {"wall_time_s": round(time.perf_counter() - start)}
 
@@ -114,10 +115,11 @@ def fresh_check(path: Path, policy: str, task: str, out: Path, workers: int, i: 
     recorded, mine = ticket.record.heldout, rows[Arm.ticket(ticket.id)]
     below = {f"p_below_{arm.key}": paired_exact_test(rows[arm].successes, mine.successes)
              for arm in (BASE, ZERO)}
-    return mine.to_dict() | below | {
+    inside = {} if recorded is None else {  # a ticket made elsewhere has no held-out record
+        "inside_recorded_interval": recorded["ci_low"] <= mine.rate.success_rate <= recorded["ci_high"]}
+    return mine.to_dict() | below | inside | {
         "base": _rate(rows[BASE].to_dict()), "zero": _rate(rows[ZERO].to_dict()),
-        "seeds": [seeds[0], seeds[-1]], "inside_recorded_interval":
-            recorded["ci_low"] <= mine.rate.success_rate <= recorded["ci_high"]}
+        "seeds": [seeds[0], seeds[-1]]}
 
 
 def _rate(row: dict) -> dict:
@@ -132,7 +134,7 @@ def table_row(s: dict) -> dict:
             "zero_ticket": best.get("source") == ZERO_SOURCE,
             "best": {k: best[k] for k in ("success_rate", "ci_low", "ci_high", "n")},
             "p_vs_base": p_vs_base(best), "p_vs_zero": best["p_vs_zero"],
-            "golden": best["golden"]} | {key: best[key] for key in FRESH_RANGES} | {
+            "golden": best["golden"]} | {key: best[key] for key in FRESH_RANGES if key in best} | {
             "search": f"{s['method']}, {s['search_episodes']} episodes, "
                       f"{'' if s['halving'] else 'not '}halved",
             "search_and_validation": s["search_episodes"] + s["validation_episodes"],

@@ -93,6 +93,7 @@ BARS = [
     ("cma-es", "bernoulli", 0.35),
     ("cma-es", "gaussian", 0.15),
     ("tiled-then-full", "gaussian", 0.15),
+    ("portfolio", "gaussian", 0.15),
     ("cem-bounds", "bernoulli", 0.35),
     ("cem-bounds", "gaussian", 0.15),
 ]
@@ -126,7 +127,8 @@ def record_queries(method: str, rng_seed: int) -> list[tuple[bytes, tuple[int, .
 
 
 @pytest.mark.parametrize("method",
-                         ["rs", "cem", "zos", "cem-racing", "cma-es", "cem-bounds", "tiled-then-full"])
+                         ["rs", "cem", "zos", "cem-racing", "cma-es", "cem-bounds", "tiled-then-full",
+                          "portfolio"])
 def test_same_rng_seed_gives_the_same_queries(method):
     first = record_queries(method, rng_seed=3)
     assert len(first) > 10
@@ -168,7 +170,33 @@ def test_tiled_then_full_starts_the_full_stage_from_the_tiled_stages_best():
     full = np.array([q.ticket for q in opt.ask()])
     assert np.abs(full.mean(axis=0) - best).max() < 0.02 and not (full == full[:, :1]).all()
     with pytest.raises(OptionError, match="subspace full"):
-        SearchConfig("metaworld/reach-v3/flow", "metaworld/reach-v3", method="tiled-then-full").check()
+        SearchConfig("metaworld/reach-v3/flow", "metaworld/reach-v3", method="tiled-then-full",
+                     subspace="tiled").check()
+
+
+def test_portfolio_gives_the_full_search_the_budget_only_where_its_best_ticket_clearly_wins():
+    def generations(tiled: list[float], full: list[float], n: int = 5) -> list[str]:
+        """Each ticket of a search succeeds on the seeds its list gives it (on 20 seeds)."""
+        opt = make_optimizer("portfolio", SHAPE, tuple(range(20)), np.random.default_rng(0), population=6)
+        went = []
+        for _ in range(n):
+            asked = opt.ask()
+            kind = "tiled" if all((q.ticket == q.ticket[0]).all() for q in asked) else "full"
+            assert len(asked) == 6 and all(q.ticket.shape == SHAPE for q in asked)
+            opt.tell(asked, [np.asarray(tiled if kind == "tiled" else full) for _ in asked])
+            went.append(kind)
+        return went
+
+    seeds = np.arange(20)
+    assert generations(list(seeds < 7), list(seeds < 20)) == ["tiled", "full", "full", "full", "full"]
+    # a lead of 5 seeds of 20 is no clear win (p = 0.031): the tiled search keeps the budget
+    assert generations(list(seeds < 10), list(seeds < 15), 8) == ["tiled", "full", "tiled", "tiled", "tiled",
+                                                                 "tiled", "full", "tiled"]  # the 5th: explore
+    pair = ("metaworld/reach-v3/flow", "metaworld/reach-v3")
+    with pytest.raises(OptionError, match="subspace full"):
+        SearchConfig(*pair, method="portfolio", subspace="tiled").check()
+    assert SearchConfig(*pair, method="portfolio").subspace == "full"
+    assert SearchConfig(*pair).subspace == "tiled"
 
 
 def returns_by_ticket(queries: list[Query]) -> list[np.ndarray]:
@@ -371,3 +399,27 @@ def test_perfect_means_every_episode_succeeded_whatever_the_objective():
     cem = make_optimizer("cem", SHAPE, SEEDS, np.random.default_rng(0), population=10)
     result = run_search(cem, discounted, budget=10_000, stop_after_perfect=3)
     assert result.stopped_because == "k perfect tickets" and result.episodes_used == 10 * 25
+
+
+def test_portfolio_asks_the_same_tickets_when_linear_algebras_last_bits_differ(monkeypatch):
+    """Another CPU's kernels: every eigendecomposition CMA-ES makes moves by a few last bits."""
+    shape = (8, 4)  # the full search's covariance is updated through eigendecompositions
+
+    def queries():
+        opt = make_optimizer("portfolio", shape, SEEDS, np.random.default_rng(1), population=10, alpha=0.5)
+        asked = []
+        for _ in range(10):
+            batch = opt.ask()
+            asked += [q.ticket.tobytes() for q in batch]
+            opt.tell(batch, [np.full(len(q.seeds), float(np.sin(q.ticket).sum())) for q in batch])
+        return asked
+
+    mine = queries()
+    eigh = np.linalg.eigh
+
+    def another_cpus(matrix, *args, **kwargs):
+        values, vectors = eigh(matrix, *args, **kwargs)
+        return values * (1 + 4e-16), vectors * (1 - 2e-16)
+
+    monkeypatch.setattr(np.linalg, "eigh", another_cpus)
+    assert queries() == mine

@@ -24,7 +24,7 @@ from goldenticket.factories import import_name
 from goldenticket.objectives import FRONT_OBJECTIVES, OBJECTIVES
 from goldenticket.options import check_types, option
 from goldenticket.seeds import SEED_SETS, require_heldout
-from goldenticket.ticket_search.methods import METHODS, SELF_RACING, method_settings
+from goldenticket.ticket_search.methods import METHODS, OWN_TILING, SELF_RACING, method_settings
 
 MAX_NONFINITE = 0.1  # default: stop once base and zero ticket both pass this fraction of non-finite episodes
 STEP_TIMEOUT = 600.0  # default seconds an env step or a policy call may take: hangs end, slow simulators run
@@ -129,7 +129,9 @@ class SearchConfig(EngineOptions):
         "success, judged per task) (default in search: the task a bundled single-task policy was trained on)",
         action="append")
     method: str = option("cma-es", "random search, CEM, zeroth-order search, CEM raced by halving "
-                         "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES",
+                         "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES, CMA-ES over a tiled "
+                         "then the full ticket (tiled-then-full), or a tiled and a full CMA-ES sharing "
+                         "the budget by which finds the better tickets (portfolio)",
                          choices=tuple(METHODS))
     budget: int = option(1100, "search episodes to spend at most (per task for transfer); with the "
                          "default halving and validation, at most 1250 episodes before the verdict")
@@ -158,9 +160,10 @@ class SearchConfig(EngineOptions):
                                   action=argparse.BooleanOptionalAction)
     max_steps: int | None = option(None, "episode step limit (default: the task's, 150 for Meta-World)")
     success: str | Callable | None = option(None, SUCCESS_HELP)
-    subspace: str = option("tiled", "what the search varies: tiled (one action-sized vector repeated over "
-                           "the horizon), full (every entry), channels:I,J (those action channels; the "
-                           "others 0)")
+    subspace: str | None = option(None, "what the search varies: tiled (one action-sized vector repeated "
+                                  "over the horizon), full (every entry), channels:I,J (those action "
+                                  "channels; the others 0) (default: full for portfolio and "
+                                  "tiled-then-full, which tile tickets themselves; tiled for the others)")
     front_objective: str | None = option(None, "a second objective: also find the Pareto front between "
                                          "the two (front.json, front.png)", choices=tuple(OBJECTIVES))
     validation_seeds: int | None = option(None, "run the 3 x top_k best search tickets on this many "
@@ -189,6 +192,8 @@ class SearchConfig(EngineOptions):
             object.__setattr__(self, "task", self.task[0] if len(self.task) == 1 else tuple(self.task))
         if self.stop_after_perfect == 0:
             object.__setattr__(self, "stop_after_perfect", None)
+        if self.subspace is None:
+            object.__setattr__(self, "subspace", "full" if self.method in OWN_TILING else "tiled")
 
     def halves(self) -> bool:
         """Whether the run spends its episodes by sequential halving: `halving`, or by default where
@@ -229,9 +234,9 @@ class SearchConfig(EngineOptions):
         check_sinks(self.log)
 
     def _check_method(self) -> None:
-        if self.method == "tiled-then-full" and self.subspace != "full":
-            raise OptionError("tiled-then-full searches the full ticket in its second stage: run it with "
-                              "subspace full", "method", "subspace")
+        if self.method in OWN_TILING and self.subspace != "full":
+            raise OptionError(f"{self.method} searches tiled and full tickets itself: run it with subspace "
+                              "full", "method", "subspace")
         self._check_race()
 
     def _check_race(self) -> None:

@@ -9,9 +9,10 @@ _MODULES = {  # each name -> the module that defines it
     **dict.fromkeys(("Candidate", "EpisodeOutcome", "SearchResult", "run_search"), "driver"),
     **dict.fromkeys(("METHODS", "method", "method_settings", "RandomSearchSettings", "CEMSettings",
                      "ZerothOrderSettings", "CEMRacingSettings", "CEMBoundsSettings", "CMAESSettings",
-                     "TiledThenFullSettings", "ModelBasedSettings", "TPESettings", "GPSettings"), "methods"),
+                     "TiledThenFullSettings", "PortfolioSettings", "ModelBasedSettings", "TPESettings",
+                     "GPSettings"), "methods"),
     **dict.fromkeys(("CEM", "CMAES", "OPTIMIZERS", "CEMRacing", "RandomSearch", "ZerothOrder",
-                     "make_optimizer"), "optimizers"),
+                     "Portfolio", "make_optimizer"), "optimizers"),
     **dict.fromkeys(("Optimizer", "Query"), "protocol"),
     **dict.fromkeys(("RACE_BLOCK", "Halved", "Raced"), "racing"),
 }

@@ -11,6 +11,7 @@ from goldenticket.options import check_types, option
 
 METHODS: dict[str, type] = {}  # a search method's name -> the dataclass of its settings
 SELF_RACING = ("cem-racing", "cem-bounds")  # methods that race their own tickets: no race, no halving
+OWN_TILING = ("portfolio", "tiled-then-full")  # methods that search tiled tickets themselves: full sub-space
 
 
 def method(name: str):
@@ -110,6 +111,23 @@ class TiledThenFullSettings:
     sigma_init: float = option(1.0, "the tiled stage's initial step size")
     tiled_generations: int = option(2, "generations of the tiled stage")
     sigma_full: float = option(0.5, "the full stage's initial step size")
+
+
+@method("portfolio")
+@dataclass(frozen=True)
+class PortfolioSettings:
+    """Two CMA-ES searches, one over a tiled ticket (one action-sized vector repeated along the
+    horizon), one over the full ticket, a generation at a time: one generation of each, then each
+    generation to the tiled one unless the full one's best ticket beats its best on the search seeds
+    by a paired sign test at p < `alpha`, every `explore`-th to the other one (run with the full
+    sub-space)."""
+
+    population: int = option(20, "tickets per generation, in both searches")
+    sigma_init: float = option(1.0, "both searches' initial step size")
+    alpha: float = option(0.01, "level of the paired sign test by which the full search's best ticket "
+                          "must beat the tiled search's best to take the next generation")
+    explore: int = option(5, "every explore-th generation after the first two goes to the search the "
+                          "test did not choose (0: never)")
 
 
 @dataclass(frozen=True)

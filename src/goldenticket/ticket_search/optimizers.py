@@ -17,6 +17,7 @@ from statistics import NormalDist
 import numpy as np
 
 from goldenticket.errors import UserError
+from goldenticket.stats import sign_test
 from goldenticket.ticket_search.methods import (
     CEMBoundsSettings,
     CEMRacingSettings,
@@ -24,6 +25,7 @@ from goldenticket.ticket_search.methods import (
     CMAESSettings,
     GPSettings,
     ModelBasedSettings,
+    PortfolioSettings,
     RandomSearchSettings,
     TiledThenFullSettings,
     TPESettings,
@@ -284,6 +286,9 @@ class CEMBounds(_RacedCEM):
         return alive.tolist() if len(alive) > self.n_elite else []
 
 
+GRID = 2.0**-16  # GriddedCMAES's tickets are multiples of it: CPUs' last-bit differences round away
+
+
 class CMAES(_Base):
     """CMA-ES (the `cma` package) over the flattened ticket, from `mean` (default w = 0, a ticket of
     the noise shape otherwise) and step size `sigma_init`; `population` tickets per ask, each on
@@ -321,13 +326,17 @@ class CMAES(_Base):
     def ask(self) -> list[Query]:
         if self.iterations is not None and self.iteration >= self.iterations:
             return []
-        self._asked = self._own_numpy(self._es.ask)
+        self._asked = self._solutions()
         return self._queries(x.reshape(self.noise_shape) for x in self._asked)
 
     def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
         losses = [-float(np.mean(r)) for r in returns]  # cma minimises
         self._own_numpy(lambda: self._es.tell(self._asked, losses))
         self.iteration += 1
+
+    def _solutions(self) -> list[np.ndarray]:
+        """The next generation, flat."""
+        return self._own_numpy(self._es.ask)
 
     def _own_numpy(self, call):
         """`call()` with this optimizer's numpy global random state in place."""
@@ -338,6 +347,16 @@ class CMAES(_Base):
         finally:
             self._numpy_state = np.random.get_state()
             np.random.set_state(theirs)
+
+
+class GriddedCMAES(CMAES):
+    """CMA-ES whose tickets are multiples of `GRID`, and told so. CMA-ES updates its covariance
+    through numpy's linear algebra, whose last bits differ between CPUs' kernels; on the grid, the
+    same run asks the same tickets on every CPU (the portfolio's searches; `cma-es` keeps the
+    tickets it has always asked)."""
+
+    def _solutions(self) -> list[np.ndarray]:
+        return [np.round(x / GRID) * GRID for x in super()._solutions()]
 
 
 class TiledThenFull(_Base):
@@ -377,6 +396,55 @@ class TiledThenFull(_Base):
             if np.mean(r) > self._best_score:
                 self._best, self._best_score = query.ticket, float(np.mean(r))
         self._tiled.tell(self._asked, returns)
+
+
+class Portfolio(_Base):
+    """A tiled and a full CMA-ES search sharing one budget: a generation of the tiled one, a
+    generation of the full one, then each generation to the tiled one unless the full one's best
+    ticket (by mean return on every search seed) beats the tiled one's best on those seeds by a
+    one-sided sign test at p < `alpha`, and every `explore`-th generation after the first two to
+    the one the test did not choose, so that a long search tries both. A tiled ticket (few numbers)
+    buys the most per episode where noise helps as a constant push; a full one can vary along the
+    chunk. Random full tickets often look better than random tiled ones at first and the tiled
+    search overtakes them, so the full one takes the budget only on clear evidence. Asks full
+    (H, A) tickets: tiled ones come repeated along the horizon, both searches' on a grid
+    (`GriddedCMAES`)."""
+
+    def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
+                 settings: PortfolioSettings | None = None, **params):
+        super().__init__(noise_shape, seeds, rng)
+        s = _settings(PortfolioSettings, settings, params)
+        _require(0 < s.alpha < 1, f"alpha must be in (0, 1), got {s.alpha}")
+        _require(s.explore >= 0, f"explore must be >= 0, got {s.explore}")
+        searches = {"tiled": (1, self.noise_shape[1]), "full": self.noise_shape}
+        self.searches = {name: GriddedCMAES(shape, seeds, rng, population=s.population,
+                                            sigma_init=s.sigma_init) for name, shape in searches.items()}
+        self.best = dict.fromkeys(self.searches, np.full(len(self.seeds), -math.inf))  # returns by seed
+        self.settings, self.generations = s, []  # the search each generation went to
+
+    def ask(self) -> list[Query]:
+        self.generations.append(self._next())
+        asked = self.searches[self.generations[-1]].ask()
+        return self._queries(np.broadcast_to(q.ticket, (self.noise_shape[0], q.ticket.shape[1]))
+                             for q in asked)
+
+    def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
+        name = self.generations[-1]
+        for r in returns:
+            if len(r) == len(self.seeds) and np.mean(r) > np.mean(self.best[name]):
+                self.best[name] = np.asarray(r, dtype=np.float64)
+        self.searches[name].tell(queries, returns)
+
+    def _next(self) -> str:
+        """The search the next generation goes to."""
+        done = len(self.generations)
+        if done < 2:
+            return ("tiled", "full")[done]
+        full, tiled = self.best["full"], self.best["tiled"]
+        chosen = "full" if sign_test(int(np.sum(full > tiled)), int(np.sum(tiled > full))) < \
+            self.settings.alpha else "tiled"
+        explore = self.settings.explore and (done - 1) % self.settings.explore == 0
+        return {"full": "tiled", "tiled": "full"}[chosen] if explore else chosen
 
 
 class _ModelBased(_Base):
@@ -469,6 +537,7 @@ OPTIMIZERS: dict[str, type] = {
     "cem-bounds": CEMBounds,
     "cma-es": CMAES,
     "tiled-then-full": TiledThenFull,
+    "portfolio": Portfolio,
     "tpe": TPE,
     "gp": GaussianProcess,
 }

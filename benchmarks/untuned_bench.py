@@ -1,0 +1,128 @@
+"""The untuned bench: the search's defaults on policies nobody tuned them for.
+
+    python benchmarks/untuned_bench.py                        # every pair, the default search
+    python benchmarks/untuned_bench.py --pairs franka-1003 --search portfolio
+
+Each pair is searched and judged as the existence table does it (`existence.run_pair`: the `search`
+defaults, the best ticket judged again with the base and the zero ticket on two ranges of 200 fresh
+held-out seeds that no search or choice saw), under each search named by --search. The paper
+authors' franka_sim checkpoints 1002 and 1003 come from ../shared/franka_sim (their env and
+checkpoints as module:factory, MIT licence; needs `pip install dm-robotics-transformations`); their
+shipped ticket is judged on the same fresh seeds beside ours. Each pair's row is kept in
+benchmarks/results/untuned_bench/<search>/<pair>.json once judged, so a run resumes pair by pair;
+its run folder under benchmarks/runs/untuned/<search>/ resumes its episodes. Results:
+benchmarks/results/untuned_bench.{md,json}.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from existence import FRESH_RANGES, HERE, fresh_check, run_folder, run_pair, table_row
+from results_files import RESULTS, write_results
+
+from goldenticket.files import write_atomic
+from goldenticket.report import rate_text
+from goldenticket.tickets import Ticket
+
+FRANKA = HERE.parent.parent / "shared" / "franka_sim"
+ROWS = RESULTS / "untuned_bench"
+PAIRS = {  # name -> (task, policy)
+    "franka-1003": ("franka_pick:make_env", "franka_pick:make_policy_1003"),
+    "franka-1002": ("franka_pick:make_env", "franka_pick:make_policy_1002"),
+    "pixels-drawer-open": ("metaworld-pixels/drawer-open-v3", "metaworld-pixels/drawer-open-v3/flow"),
+    "fetch-push": ("examples.fetch_push:make_env", "examples.fetch_push:make_policy"),
+}
+SLOW = {"heldout": 50, "fresh_ranges": 1}  # franka_sim: 4-5 s an episode on one core
+JUDGING = {name: SLOW if name.startswith("franka-") else {} for name in PAIRS}  # the verdict and fresh check
+SEARCHES = {"default": {},  # the `search` defaults: CMA-ES over a tiled ticket
+            "portfolio": {"method": "portfolio", "subspace": "full"}}  # a tiled and a full CMA-ES
+
+
+def on_path(folder: Path) -> None:
+    """`folder` importable here and in worker processes."""
+    sys.path.insert(0, str(folder))
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(folder), os.environ.get("PYTHONPATH")]))
+
+
+def pair_row(name: str, search: str, workers: int) -> None:
+    """The pair's row under `search`, searched, judged and kept, unless kept already."""
+    path = ROWS / search / f"{name}.json"
+    if not path.exists():
+        task, policy = PAIRS[name]
+        print(f"[{search}] {name}", flush=True)
+        summary = run_pair(task, policy, HERE / "runs" / "untuned" / search, workers,
+                           **SEARCHES[search] | JUDGING[name])
+        write_atomic(path, json.dumps(table_row(summary), indent=2) + "\n")
+
+
+def authors_row(name: str, search: str, workers: int) -> None:
+    """The paper authors' shipped ticket for a franka_sim checkpoint, judged on the fresh ranges and
+    kept, in `search`'s run folder (its base and zero episodes shared); nothing for the other pairs."""
+    if not name.startswith("franka-"):
+        return
+    kept = ROWS / "authors-ticket" / f"{name}.json"
+    if kept.exists():
+        return
+    import franka_pick
+
+    task, policy = PAIRS[name]
+    out = run_folder(HERE / "runs" / "untuned" / search, policy)
+    out.mkdir(parents=True, exist_ok=True)
+    ticket = Ticket(franka_pick.authors_ticket(int(name.removeprefix("franka-"))))
+    path = ticket.save(out / "authors-ticket.safetensors")
+    ranges = FRESH_RANGES[: JUDGING[name].get("fresh_ranges", len(FRESH_RANGES))]
+    row = {key: fresh_check(path, policy, task, out, workers, i) for i, key in enumerate(ranges)}
+    write_atomic(kept, json.dumps(row, indent=2) + "\n")
+
+
+def markdown(rows: dict, authors: dict) -> str:
+    lines = ["| pair | search | fresh range | base | zero ticket | delivered | p vs base | p vs zero | "
+             "p below base | p below zero | search + validation episodes | wall time |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name in dict.fromkeys(name for name, _ in rows):
+        for (pair, search), r in rows.items():
+            if pair == name:
+                delivered = "the zero ticket" if r["zero_ticket"] else f"ticket {r['ticket']}"
+                cost = f"{r['search_and_validation']} | {r['wall_time_s'] / 60:.0f} min"
+                lines += [range_line(name, f"{search}: {delivered}", r[key], cost) for key in FRESH_RANGES
+                          if key in r]
+        theirs = authors.get(name, {}).values()
+        lines += [range_line(name, "the authors' shipped ticket", f, "- | -") for f in theirs]
+    return "\n".join(lines) + "\n"
+
+
+def range_line(name: str, label: str, f: dict, cost: str) -> str:
+    """One ticket's line on one fresh range: base, zero ticket and it, its one-sided p-values of being
+    better (vs) and worse (below), its cost."""
+    tests = ("p_vs_base", "p_vs_zero", "p_below_base", "p_below_zero")
+    p_values = " | ".join(f"{f[key]:.2g}" for key in tests)
+    return (f"| {name} | {label} | {f['seeds'][0]}:{f['seeds'][1] + 1} | {rate_text(f['base'])} | "
+            f"{rate_text(f['zero'])} | {rate_text(f)} | {p_values} | {cost} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--pairs", nargs="+", choices=list(PAIRS), default=list(PAIRS))
+    parser.add_argument("--search", nargs="+", choices=list(SEARCHES), default=["default"])
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    on_path(FRANKA)
+    on_path(HERE.parent)  # the examples' policies and envs, named as the CLI names them
+    for name in args.pairs:
+        for search in args.search:
+            pair_row(name, search, args.workers)
+        authors_row(name, args.search[0], args.workers)
+    kept = {(p.stem, p.parent.name): json.loads(p.read_text()) for p in sorted(ROWS.glob("*/*.json"))
+            if p.parent.name in SEARCHES}
+    authors = {p.stem: json.loads(p.read_text()) for p in sorted(ROWS.glob("authors-ticket/*.json"))}
+    record = {"pairs": {f"{n}/{s}": r for (n, s), r in kept.items()}, "authors_ticket": authors}
+    write_results("untuned_bench", record, markdown(kept, authors))
+
+
+if __name__ == "__main__":
+    main()
