@@ -129,7 +129,7 @@ def _rate(row: dict) -> dict:
 
 def table_row(s: dict) -> dict:
     best = s["best"]
-    return {"task": s["task"].removeprefix("metaworld/"), "policy": s["policy"].rsplit("/", 1)[1],
+    return {"task": s["task"].removeprefix("metaworld/"), "policy": s["policy"].rsplit("/", 1)[-1],
             "base": s["base"], "zero": s["zero"], "ticket": best["ticket_id"],
             "zero_ticket": best.get("source") == ZERO_SOURCE,
             "best": {k: best[k] for k in ("success_rate", "ci_low", "ci_high", "n")},

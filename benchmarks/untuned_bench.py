@@ -27,6 +27,7 @@ from results_files import RESULTS, write_results
 
 from goldenticket.files import write_atomic
 from goldenticket.report import rate_text
+from goldenticket.store import RunStore
 from goldenticket.tickets import Ticket
 
 FRANKA = HERE.parent.parent / "shared" / "franka_sim"
@@ -55,9 +56,25 @@ def pair_row(name: str, search: str, workers: int) -> None:
     if not path.exists():
         task, policy = PAIRS[name]
         print(f"[{search}] {name}", flush=True)
-        summary = run_pair(task, policy, HERE / "runs" / "untuned" / search, workers,
-                           **SEARCHES[search] | JUDGING[name])
-        write_atomic(path, json.dumps(table_row(summary), indent=2) + "\n")
+        runs = HERE / "runs" / "untuned" / search
+        summary = run_pair(task, policy, runs, workers, **SEARCHES[search] | JUDGING[name])
+        row = table_row(summary)
+        row |= {"deliver": summary["deliver"],
+                "episode_seconds": episode_seconds(run_folder(runs, policy), row["ticket"])}
+        write_atomic(path, json.dumps(row, indent=2) + "\n")
+
+
+def episode_seconds(out: Path, ticket: str) -> int:
+    """The pair's own episodes' wall times in its run folder, summed: the search's, validation's and
+    verdict's, and the fresh check's of the base, the zero ticket and `ticket` (not those of a ticket
+    judged beside them there). What the pair cost, however many times its run was stopped and resumed
+    (its wall time counts only the last)."""
+    total = 0.0
+    for path in out.glob("*.sqlite"):
+        with RunStore(path) as store:
+            total += sum(row.wall_time for row in store.episodes()
+                         if path.name == "run.sqlite" or row.ticket_id in ("base", "zero", ticket))
+    return round(total)
 
 
 def authors_row(name: str, search: str, workers: int) -> None:
@@ -82,27 +99,33 @@ def authors_row(name: str, search: str, workers: int) -> None:
 
 def markdown(rows: dict, authors: dict) -> str:
     lines = ["| pair | search | fresh range | base | zero ticket | delivered | p vs base | p vs zero | "
-             "p below base | p below zero | search + validation episodes | wall time |",
+             "p below base | p below zero | search + validation episodes | episodes' time |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in dict.fromkeys(name for name, _ in rows):
         for (pair, search), r in rows.items():
             if pair == name:
-                delivered = "the zero ticket" if r["zero_ticket"] else f"ticket {r['ticket']}"
-                cost = f"{r['search_and_validation']} | {r['wall_time_s'] / 60:.0f} min"
-                lines += [range_line(name, f"{search}: {delivered}", r[key], cost) for key in FRESH_RANGES
-                          if key in r]
+                cost = f"{r['search_and_validation']} | {r['episode_seconds'] / 60:.0f} min"
+                lines += [range_line(name, f"{search}: {delivered(r)}", r[key], cost, r["deliver"] == "base")
+                          for key in FRESH_RANGES if key in r]
         theirs = authors.get(name, {}).values()
         lines += [range_line(name, "the authors' shipped ticket", f, "- | -") for f in theirs]
     return "\n".join(lines) + "\n"
 
 
-def range_line(name: str, label: str, f: dict, cost: str) -> str:
-    """One ticket's line on one fresh range: base, zero ticket and it, its one-sided p-values of being
-    better (vs) and worse (below), its cost."""
+def delivered(row: dict) -> str:
+    """What the job tells the user to run: the best ticket, the zero ticket, or the base where no
+    ticket judged beat it on the held-out seeds."""
+    best = "the zero ticket" if row["zero_ticket"] else f"ticket {row['ticket']}"
+    return f"the base (its best, {best}, was not above it)" if row["deliver"] == "base" else best
+
+
+def range_line(name: str, label: str, f: dict, cost: str, base: bool = False) -> str:
+    """One delivered arm's line on one fresh range: base, zero ticket and it (the base itself where
+    `base`), its one-sided p-values of being better (vs) and worse (below), its cost."""
     tests = ("p_vs_base", "p_vs_zero", "p_below_base", "p_below_zero")
-    p_values = " | ".join(f"{f[key]:.2g}" for key in tests)
+    p_values = " | ".join("-" if base else f"{f[key]:.2g}" for key in tests)
     return (f"| {name} | {label} | {f['seeds'][0]}:{f['seeds'][1] + 1} | {rate_text(f['base'])} | "
-            f"{rate_text(f['zero'])} | {rate_text(f)} | {p_values} | {cost} |")
+            f"{rate_text(f['zero'])} | {rate_text(f['base'] if base else f)} | {p_values} | {cost} |")
 
 
 def main() -> None:

@@ -422,20 +422,23 @@ def test_a_golden_ticket_below_the_zero_ticket_on_fresh_seeds_is_not_shipped(tmp
     assert not any((tmp_path / "robomimic" / "can" / "flow" / "tickets").iterdir())
 
 
-def test_untuned_bench_names_a_zero_ticket_win_and_sets_the_authors_ticket_beside_each_pair():
+def test_untuned_bench_says_what_the_job_delivers_and_sets_the_authors_ticket_beside_each_pair():
     seeds = {"seeds": [1000200, 1000399]}
-    ours = _row(0.5, 0.45, 0.9, 1e-6, 1e-7) | {"ticket": "abc", "wall_time_s": 600}
+    ours = _row(0.5, 0.45, 0.9, 1e-6, 1e-7) | {"ticket": "abc", "episode_seconds": 600, "deliver": "ticket"}
     ours["fresh"] = ours["fresh"] | seeds
     del ours["fresh_2"]  # one fresh range judged
-    zero = _row(0.5, 0.7, 0.7, 0.001, 1.0, zero_ticket=True) | {"ticket": "def", "wall_time_s": 60}
+    zero = _row(0.5, 0.4, 0.4, 1.0, 1.0, zero_ticket=True) | {"ticket": "def", "episode_seconds": 60,
+                                                               "deliver": "base"}
     zero["fresh"], zero["fresh_2"] = zero["fresh"] | seeds, zero["fresh_2"] | seeds
     authors = {"franka-1003": {"fresh": ours["fresh"] | {"success_rate": 0.95}}}
     rows = {("franka-1003", "portfolio"): ours, ("franka-1003", "default"): zero}
     table = untuned_bench.markdown(rows, authors)
     lines = table.splitlines()[2:]
-    assert [line.split(" | ")[1] for line in lines] == [
-        "portfolio: ticket abc", "default: the zero ticket", "default: the zero ticket",
-        "the authors' shipped ticket"]
+    base = "default: the base (its best, the zero ticket, was not above it)"
+    assert [line.split(" | ")[1] for line in lines] == ["portfolio: ticket abc", base, base,
+                                                        "the authors' shipped ticket"]
+    assert lines[1].split(" | ")[3] == lines[1].split(" | ")[5] == "50.0% [45%, 55%]"  # the base, delivered
+    assert " | - | - | - | - | " in lines[1]
     rates = "| 1000200:1000400 | 50.0% [45%, 55%] | 45.0% [40%, 50%] | 90.0% [85%, 95%] | 1e-06 | 1e-07 |"
     assert rates in lines[0]
     assert "95.0%" in lines[3] and lines[0].endswith("| 1200 | 10 min |")
