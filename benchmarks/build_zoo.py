@@ -20,6 +20,7 @@ import json
 import multiprocessing as mp
 from dataclasses import asdict
 
+from goldenticket import kernels
 from goldenticket.config import TrainConfig
 from goldenticket.policies import BUNDLED_DIR, MLPPolicy
 from goldenticket.tasks import get_task
@@ -91,6 +92,7 @@ def main() -> None:
     parser.add_argument("--remeasure", action="store_true",
                         help="re-measure the cards of the bundled policies instead of training")
     args = parser.parse_args()
+    kernels.restart_pinned(args.only or (ROBOMIMIC if args.robomimic else []))  # as the CLI pins
     if args.multitask:
         todo, run = [k for k in args.only or TRAINED_STEPS
                      if not (BUNDLED_DIR / "metaworld/mt10" / k / "card.json").is_file()], build_multitask

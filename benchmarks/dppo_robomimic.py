@@ -50,6 +50,7 @@ from results_files import RESULTS
 from torch.nn import functional
 from tqdm import tqdm
 
+from goldenticket import kernels
 from goldenticket.config import EngineOptions
 from goldenticket.errors import UserError
 from goldenticket.evaluation import BASE, ZERO, Evaluator, judge
@@ -231,8 +232,10 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=SEED, help="of the demonstrations and the training")
     parser.add_argument("--workers", type=int, default=2, help="evaluation worker processes")
     parser.add_argument("--out", type=Path, default=None, help="checkpoint (default: runs/dppo-<task>)")
+    args = parser.parse_args()
+    kernels.restart_pinned([f"robomimic/{args.task}"])  # as the CLI pins
     try:
-        run(parser.parse_args())
+        run(args)
     except UserError as exc:
         raise SystemExit(f"error: {exc}") from None
 

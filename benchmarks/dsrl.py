@@ -54,6 +54,7 @@ import numpy as np
 import torch
 from results_files import write_results
 
+from goldenticket import kernels
 from goldenticket.config import EngineOptions, SearchConfig
 from goldenticket.errors import UserError
 from goldenticket.evaluation import Evaluator
@@ -425,6 +426,7 @@ def main() -> None:
                         help="SAC's torch threads and the searches' workers (default: 1)")
     parser.add_argument("--no-write", action="store_true", help="print the table, write no results files")
     args = parser.parse_args()
+    kernels.restart_pinned(args.pairs)  # as the CLI pins
     na = args.minutes if args.na_minutes is None else args.na_minutes
     minutes = {"dsrl_sac": args.minutes, "dsrl_na": na}
     if args.minutes <= 0 or na < 0 or args.workers < 1:

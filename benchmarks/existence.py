@@ -31,6 +31,7 @@ import numpy as np
 from build_zoo import MT10, ROBOMIMIC
 from results_files import RESULTS, write_results
 
+from goldenticket import kernels
 from goldenticket.config import EvaluateConfig, SearchConfig
 from goldenticket.evaluation import BASE, ZERO, Arm
 from goldenticket.job import find_golden_tickets
@@ -395,6 +396,7 @@ def main() -> None:
     parser.add_argument("--plot-only", action="store_true",
                         help="redraw existence.png from the committed existence.json; run no episode")
     args = parser.parse_args()
+    kernels.restart_pinned(ROBOMIMIC if args.robomimic is not None else [])  # as the CLI pins
     if args.plot_only:
         save_figure(json.loads((RESULTS / "existence.json").read_text())["pairs"], RESULTS / "existence.png")
         return

@@ -1,5 +1,6 @@
 """A policy and environments written outside goldenticket, named by import strings in tests."""
 
+import itertools
 import multiprocessing as mp
 import os
 
@@ -51,14 +52,15 @@ class ExactController(BiasedController):
 
 
 class Unseeded(PointReach):
-    """Ignores reset's seed: an env's n-th reset draws the n-th state, whatever the seed (the same
-    states in every run, so a check sees the same wherever it runs)."""
+    """Ignores reset's seed: each reset in a process draws the next state of a count (the same states
+    in every run), its goal near its start (so the policy's actions answer their noise there)."""
 
-    resets = 0
+    resets = itertools.count()
 
     def reset(self, seed=None, options=None):
-        self.resets += 1
-        return super().reset(seed=self.resets, options=options)
+        super().reset(seed=next(Unseeded.resets))
+        self.goal = self.pos + self.np_random.uniform(-0.1, 0.1, 2)
+        return self._obs(), {}
 
 
 class UnseededInPools(PointReach):

@@ -74,3 +74,14 @@ def test_the_command_runs_the_recorded_numbers_kernels_by_itself():
     assert "note:" not in run.stderr  # no advice to set a variable: the command chose the kernels
     chosen = _run({"OPENBLAS_CORETYPE": "Sandybridge"}, code)  # a user's own choice stands
     assert chosen.stderr.splitlines()[-1] == "0 Sandybridge" and "OPENBLAS_CORETYPE=Haswell" in chosen.stderr
+
+
+def test_a_benchmark_that_loaded_numpy_restarts_with_the_recorded_numbers_kernels():
+    code = ("import sys, numpy\nfrom goldenticket import kernels\n"
+            "print('started', file=sys.stderr)\nkernels.restart_pinned({names})\n"
+            "print(kernels.openblas_kernels(), file=sys.stderr)")
+    run = _run({}, code.format(names="['robomimic/can']"))
+    assert run.returncode == 0 and run.stderr.split() == ["started", "started", "Haswell"], run.stderr
+    assert _run({}, code.format(names="['metaworld/reach-v3']")).stderr.count("started") == 1  # no restart
+    chosen = _run({"OPENBLAS_CORETYPE": "Sandybridge"}, code.format(names="['robomimic/can']"))
+    assert chosen.stderr.split() == ["started", "Sandybridge"]

@@ -26,11 +26,24 @@ def pin(names: Iterable[object]) -> bool:
     """Have OpenBLAS load Haswell's kernels if any of `names` (tasks, policies) is robomimic's, numpy
     has not loaded yet, the user chose no kernels and the CPU runs them; whether it did. Child
     processes inherit the choice."""
-    wanted = any(isinstance(name, str) and name.startswith(ROBOMIMIC) for name in names)
-    if not wanted or "numpy" in sys.modules or VARIABLE in os.environ or not _runs_haswell_kernels():
+    if "numpy" in sys.modules or not _wants_haswell_kernels(names):
         return False
     os.environ[VARIABLE] = REFERENCE
     return True
+
+
+def restart_pinned(names: Iterable[object]) -> None:
+    """`pin` for a script that has loaded numpy already (a benchmark): where `pin` would choose
+    Haswell's kernels, run the script again from the start with them. Call it before any work."""
+    if _wants_haswell_kernels(names):
+        os.environ[VARIABLE] = REFERENCE
+        os.execv(sys.executable, sys.orig_argv)
+
+
+def _wants_haswell_kernels(names: Iterable[object]) -> bool:
+    """Whether any of `names` is robomimic's, the user chose no kernels and the CPU runs Haswell's."""
+    wanted = any(isinstance(name, str) and name.startswith(ROBOMIMIC) for name in names)
+    return wanted and VARIABLE not in os.environ and _runs_haswell_kernels()
 
 
 def _runs_haswell_kernels() -> bool:
