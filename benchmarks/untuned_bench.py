@@ -2,6 +2,7 @@
 
     python benchmarks/untuned_bench.py                        # every pair, the default search
     python benchmarks/untuned_bench.py --pairs franka-1003 --search portfolio
+    lerobot-venv/bin/python benchmarks/untuned_bench.py --pairs smolvla-drawer-open lerobot-reach
 
 Each pair is searched and judged as the existence table does it (`existence.run_pair`: the `search`
 defaults, the best ticket judged again with the base and the zero ticket on two ranges of 200 fresh
@@ -10,7 +11,9 @@ authors' franka_sim checkpoints 1002 and 1003 come from ../shared/franka_sim (th
 checkpoints as module:factory, MIT licence; needs `pip install dm-robotics-transformations`); their
 shipped ticket is judged on the same fresh seeds beside ours. Each pair's row is kept in
 benchmarks/results/untuned_bench/<search>/<pair>.json once judged, so a run resumes pair by pair;
-its run folder under benchmarks/runs/untuned/<search>/ resumes its episodes. Results:
+its run folder under benchmarks/runs/untuned/<search>/ resumes its episodes. The LeRobot examples'
+pairs (the SmolVLA, the UNet diffusion policy on reach) run in LeRobot's venv, their shipped tickets
+judged beside ours. Results:
 benchmarks/results/untuned_bench.{md,json}.
 """
 
@@ -37,7 +40,13 @@ PAIRS = {  # name -> (task, policy)
     "franka-1002": ("franka_pick:make_env", "franka_pick:make_policy_1002"),
     "pixels-drawer-open": ("metaworld-pixels/drawer-open-v3", "metaworld-pixels/drawer-open-v3/flow"),
     "fetch-push": ("examples.fetch_push:make_env", "examples.fetch_push:make_policy"),
+    "smolvla-drawer-open": ("metaworld-pixels/drawer-open-v3", "examples/smolvla_metaworld_policy"),
+    "lerobot-reach": ("examples.lerobot_reach:make_env", "examples/lerobot_reach_policy"),
 }
+SHIPPED = {"smolvla-drawer-open": "examples/smolvla_metaworld_ticket.safetensors",  # the examples' tickets
+           "lerobot-reach": "examples/lerobot_reach_ticket.safetensors"}
+REFERENCES = {"authors-ticket": "the authors' shipped ticket",  # kind -> label of a ticket shipped before
+              "shipped-ticket": "the example's ticket before this bench"}
 SLOW = {"heldout": 50, "fresh_ranges": 1}  # franka_sim: 4-5 s an episode on one core
 JUDGING = {name: SLOW if name.startswith("franka-") else {} for name in PAIRS}  # the verdict and fresh check
 SEARCHES = {"default": {},  # the `search` defaults: CMA-ES over a tiled ticket
@@ -77,27 +86,35 @@ def episode_seconds(out: Path, ticket: str) -> int:
     return round(total)
 
 
-def authors_row(name: str, search: str, workers: int) -> None:
-    """The paper authors' shipped ticket for a franka_sim checkpoint, judged on the fresh ranges and
-    kept, in `search`'s run folder (its base and zero episodes shared); nothing for the other pairs."""
-    if not name.startswith("franka-"):
+def reference_row(name: str, search: str, workers: int) -> None:
+    """The ticket shipped for the pair before any search here (`reference_ticket`), judged on the
+    fresh ranges and kept, in `search`'s run folder (its base and zero episodes shared)."""
+    kind, ticket = reference_ticket(name)
+    if kind is None or (kept := ROWS / kind / f"{name}.json").exists():
         return
-    kept = ROWS / "authors-ticket" / f"{name}.json"
-    if kept.exists():
-        return
-    import franka_pick
-
     task, policy = PAIRS[name]
     out = run_folder(HERE / "runs" / "untuned" / search, policy)
     out.mkdir(parents=True, exist_ok=True)
-    ticket = Ticket(franka_pick.authors_ticket(int(name.removeprefix("franka-"))))
-    path = ticket.save(out / "authors-ticket.safetensors")
+    path = ticket.save(out / f"{kind}.safetensors")
     ranges = FRESH_RANGES[: JUDGING[name].get("fresh_ranges", len(FRESH_RANGES))]
-    row = {key: fresh_check(path, policy, task, out, workers, i) for i, key in enumerate(ranges)}
+    row = {"ticket": ticket.id} | {key: fresh_check(path, policy, task, out, workers, i)
+                                   for i, key in enumerate(ranges)}
     write_atomic(kept, json.dumps(row, indent=2) + "\n")
 
 
-def markdown(rows: dict, authors: dict) -> str:
+def reference_ticket(name: str) -> tuple[str | None, Ticket | None]:
+    """(its kind, the ticket) shipped for the pair: the paper authors' for a franka_sim checkpoint,
+    the example's own for a LeRobot example; (None, None) for the other pairs."""
+    if name.startswith("franka-"):
+        import franka_pick
+
+        return "authors-ticket", Ticket(franka_pick.authors_ticket(int(name.removeprefix("franka-"))))
+    if name in SHIPPED:
+        return "shipped-ticket", Ticket.load(HERE.parent / SHIPPED[name])
+    return None, None
+
+
+def markdown(rows: dict, references: dict) -> str:
     lines = ["| pair | search | fresh range | base | zero ticket | delivered | p vs base | p vs zero | "
              "p below base | p below zero | search + validation episodes | episodes' time |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -107,8 +124,10 @@ def markdown(rows: dict, authors: dict) -> str:
                 cost = f"{r['search_and_validation']} | {r['episode_seconds'] / 60:.0f} min"
                 lines += [range_line(name, f"{search}: {delivered(r)}", r[key], cost, r["deliver"] == "base")
                           for key in FRESH_RANGES if key in r]
-        theirs = authors.get(name, {}).values()
-        lines += [range_line(name, "the authors' shipped ticket", f, "- | -") for f in theirs]
+        for kind, label in REFERENCES.items():
+            theirs = references.get(kind, {}).get(name, {})
+            lines += [range_line(name, f"{label}, {theirs['ticket']}", theirs[key], "- | -")
+                      for key in FRESH_RANGES if key in theirs]
     return "\n".join(lines) + "\n"
 
 
@@ -139,12 +158,14 @@ def main() -> None:
     for name in args.pairs:
         for search in args.search:
             pair_row(name, search, args.workers)
-        authors_row(name, args.search[0], args.workers)
+        reference_row(name, args.search[0], args.workers)
     kept = {(p.stem, p.parent.name): json.loads(p.read_text()) for p in sorted(ROWS.glob("*/*.json"))
             if p.parent.name in SEARCHES}
-    authors = {p.stem: json.loads(p.read_text()) for p in sorted(ROWS.glob("authors-ticket/*.json"))}
-    record = {"pairs": {f"{n}/{s}": r for (n, s), r in kept.items()}, "authors_ticket": authors}
-    write_results("untuned_bench", record, markdown(kept, authors))
+    references = {kind: {p.stem: json.loads(p.read_text()) for p in sorted(ROWS.glob(f"{kind}/*.json"))}
+                  for kind in REFERENCES}
+    record = {"pairs": {f"{n}/{s}": r for (n, s), r in kept.items()}}
+    record |= {kind.replace("-", "_"): rows for kind, rows in references.items()}
+    write_results("untuned_bench", record, markdown(kept, references))
 
 
 if __name__ == "__main__":

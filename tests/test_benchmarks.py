@@ -430,13 +430,14 @@ def test_untuned_bench_says_what_the_job_delivers_and_sets_the_authors_ticket_be
     zero = _row(0.5, 0.4, 0.4, 1.0, 1.0, zero_ticket=True) | {"ticket": "def", "episode_seconds": 60,
                                                                "deliver": "base"}
     zero["fresh"], zero["fresh_2"] = zero["fresh"] | seeds, zero["fresh_2"] | seeds
-    authors = {"franka-1003": {"fresh": ours["fresh"] | {"success_rate": 0.95}}}
+    theirs = {"ticket": "ghi", "fresh": ours["fresh"] | {"success_rate": 0.95}}
+    authors = {"authors-ticket": {"franka-1003": theirs}}
     rows = {("franka-1003", "portfolio"): ours, ("franka-1003", "default"): zero}
     table = untuned_bench.markdown(rows, authors)
     lines = table.splitlines()[2:]
     base = "default: the base (its best, the zero ticket, was not above it)"
     assert [line.split(" | ")[1] for line in lines] == ["portfolio: ticket abc", base, base,
-                                                        "the authors' shipped ticket"]
+                                                        "the authors' shipped ticket, ghi"]
     assert lines[1].split(" | ")[3] == lines[1].split(" | ")[5] == "50.0% [45%, 55%]"  # the base, delivered
     assert " | - | - | - | - | " in lines[1]
     rates = "| 1000200:1000400 | 50.0% [45%, 55%] | 45.0% [40%, 50%] | 90.0% [85%, 95%] | 1e-06 | 1e-07 |"
