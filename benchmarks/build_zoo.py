@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+import sys
 from dataclasses import asdict
 
 from goldenticket import kernels
@@ -92,7 +93,6 @@ def main() -> None:
     parser.add_argument("--remeasure", action="store_true",
                         help="re-measure the cards of the bundled policies instead of training")
     args = parser.parse_args()
-    kernels.restart_pinned(args.only or (ROBOMIMIC if args.robomimic else []))  # as the CLI pins
     if args.multitask:
         todo, run = [k for k in args.only or TRAINED_STEPS
                      if not (BUNDLED_DIR / "metaworld/mt10" / k / "card.json").is_file()], build_multitask
@@ -110,4 +110,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    kernels.restart_pinned([*ROBOMIMIC] if "--robomimic" in sys.argv else sys.argv)  # as the CLI pins
     main()

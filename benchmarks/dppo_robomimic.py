@@ -232,13 +232,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=SEED, help="of the demonstrations and the training")
     parser.add_argument("--workers", type=int, default=2, help="evaluation worker processes")
     parser.add_argument("--out", type=Path, default=None, help="checkpoint (default: runs/dppo-<task>)")
-    args = parser.parse_args()
-    kernels.restart_pinned([f"robomimic/{args.task}"])  # as the CLI pins
     try:
-        run(args)
+        run(parser.parse_args())
     except UserError as exc:
         raise SystemExit(f"error: {exc}") from None
 
 
 if __name__ == "__main__":
+    kernels.restart_pinned(["robomimic/"])  # as the CLI pins, before any work
     main()

@@ -43,6 +43,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -426,7 +427,6 @@ def main() -> None:
                         help="SAC's torch threads and the searches' workers (default: 1)")
     parser.add_argument("--no-write", action="store_true", help="print the table, write no results files")
     args = parser.parse_args()
-    kernels.restart_pinned(args.pairs)  # as the CLI pins
     na = args.minutes if args.na_minutes is None else args.na_minutes
     minutes = {"dsrl_sac": args.minutes, "dsrl_na": na}
     if args.minutes <= 0 or na < 0 or args.workers < 1:
@@ -450,4 +450,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    kernels.restart_pinned(sys.argv)  # robomimic's pairs: as the CLI pins, before any work
     main()

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -396,7 +397,6 @@ def main() -> None:
     parser.add_argument("--plot-only", action="store_true",
                         help="redraw existence.png from the committed existence.json; run no episode")
     args = parser.parse_args()
-    kernels.restart_pinned(ROBOMIMIC if args.robomimic is not None else [])  # as the CLI pins
     if args.plot_only:
         save_figure(json.loads((RESULTS / "existence.json").read_text())["pairs"], RESULTS / "existence.png")
         return
@@ -451,4 +451,5 @@ def wall_lines(rows: list[dict]) -> list[str]:
                       for r in rows) + "."]
 
 if __name__ == "__main__":
+    kernels.restart_pinned(ROBOMIMIC if "--robomimic" in sys.argv else [])  # as the CLI pins, before any work
     main()
