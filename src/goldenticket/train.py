@@ -1,5 +1,5 @@
-"""Demonstrations from scripted experts (Meta-World's, robomimic's Lift, Can and Square), and
-deterministic policy training."""
+"""Demonstrations from scripted experts (Meta-World's, robomimic's Lift, Can and Square, LIBERO-Object's),
+and deterministic policy training."""
 
 from __future__ import annotations
 
@@ -21,12 +21,15 @@ from goldenticket.policies import mlp
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
 from goldenticket.seeds import seeds_in
 from goldenticket.stats import Rate
-from goldenticket.tasks import MetaWorldTask, get_task, robomimic_experts
+from goldenticket.tasks import MetaWorldTask, get_task, libero_experts, robomimic_experts
 from goldenticket.tasks.base import stack
+from goldenticket.tasks.lerobot_envs import LeRobotEnvTask
 from goldenticket.tasks.metaworld import STATE_DIM
 from goldenticket.tasks.pixels import SIZE as PIXELS
 from goldenticket.tasks.pixels import PixelsTask
 from goldenticket.tasks.robomimic import RobomimicTask
+
+ExpertTask = MetaWorldTask | RobomimicTask | LeRobotEnvTask  # the tasks with scripted experts
 
 
 @dataclass(frozen=True)
@@ -75,7 +78,7 @@ class Demos:
         return merged
 
 
-def collect_demos(task: MetaWorldTask | RobomimicTask, n: int, style: DemoStyle, seed: int = 0) -> Demos:
+def collect_demos(task: ExpertTask, n: int, style: DemoStyle, seed: int = 0) -> Demos:
     """`n` successful scripted-expert demonstrations on training seeds."""
     env = task.make_env()
     experts = _experts(task, env)
@@ -102,13 +105,14 @@ def collect_demos(task: MetaWorldTask | RobomimicTask, n: int, style: DemoStyle,
 Expert = Callable[[np.ndarray], np.ndarray]  # one episode's expert: observation -> action
 
 
-def _experts(task: MetaWorldTask | RobomimicTask, env) -> Callable[[np.ndarray, np.ndarray], Expert]:
+def _experts(task: ExpertTask, env) -> Callable[[np.ndarray, np.ndarray], Expert]:
     """The task's scripted expert for a demonstrator's (grasp, goal) shifts. Meta-World's experts
     read the env's full state, whatever the policy will see, with the shifts added to the object's
     and the goal's x and y."""
-    if isinstance(task, RobomimicTask):
-        robomimic_experts.check(task.name)
-        return lambda grasp, goal: robomimic_experts.expert(task.name, env, grasp, goal).act
+    experts = {RobomimicTask: robomimic_experts, LeRobotEnvTask: libero_experts}.get(type(task))
+    if experts:
+        experts.check(task.name)
+        return lambda grasp, goal: experts.expert(task.name, env, grasp, goal).act
     from metaworld.policies import ENV_POLICY_MAP
 
     if task.env_name not in ENV_POLICY_MAP:

@@ -269,6 +269,12 @@ class LiberoTaskEnv(GymEnv):
         self.listed = listed
         weakref.finalize(self, env.close)  # its renderer, before robosuite's EGL teardown at exit
 
+    @property
+    def robosuite_env(self):
+        """LIBERO's robosuite env inside (scripted experts read its state), built on first use."""
+        self._env._ensure_env()
+        return self._env._env.env
+
     def reset(self, seed: int) -> dict:
         if self.listed:  # entry seed mod the list's length, whatever ran before
             self._env.init_state_id = seed % len(self._env._init_states)
