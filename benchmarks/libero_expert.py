@@ -42,7 +42,8 @@ def measure(task_id: int, style: DemoStyle, seeds: range) -> dict:
 
 
 def markdown(rows: dict) -> str:
-    lines = ["| task | instruction | " + " | ".join(STYLES) + " | steps (no habits) | s an episode |",
+    lines = ["| task | instruction | " + " | ".join(STYLES)
+             + " | steps (no habits) | s an episode (no habits) |",
              "|---|---|" + "---|" * (len(STYLES) + 2)]
     for name, by_style in rows.items():
         first = next(iter(by_style.values()))
@@ -68,8 +69,9 @@ def main() -> None:
                                             for label, style in STYLES.items()}
         record = {"styles": {label: style.describe() for label, style in STYLES.items()}, "tasks": rows,
                   "wall_time_s": round(time.perf_counter() - start)}
-        write_results("libero_expert", record, markdown(rows))
-        print(markdown(rows).splitlines()[-3], flush=True)
+        table = markdown(rows)
+        write_results("libero_expert", record, table)
+        print(table.splitlines()[-3], flush=True)
 
 
 if __name__ == "__main__":
