@@ -10,12 +10,13 @@
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
 searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
 ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`,
-`--subspace`, `--method`, `--race`, `--halving`, `--validation-seeds` and `--population` change
+`--subspace`, `--method`, `--race`, `--halving`, `--validation-seeds`, `--population` and
+`--full-start` (where the portfolio's full search starts) change
 the search at those budgets (a point is a budget and a search). The point at the default budget and
 search is the existence table's own. Each pair's row is kept in
 benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget, then -seedsN, -valN,
--raceP, -popN, -halving, -full and the method, its dashes written as underscores, where they differ
-from the defaults), so a run resumes pair by pair, on another machine too; its run folder under
+-raceP, -popN, -halving, -full, the method, its dashes written as underscores, and -start_S, where
+they differ from the defaults), so a run resumes pair by pair, on another machine too; its run folder under
 benchmarks/runs/budget-<point>/ resumes a pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
 """
@@ -30,11 +31,15 @@ from results_files import RESULTS, write_results
 
 from goldenticket.files import write_atomic
 from goldenticket.ticket_search import METHODS
+from goldenticket.ticket_search.methods import FULL_STARTS
 
 ROWS = RESULTS / "budget_curve"
 SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {
-    "race": None, "population": None, "halving": False}  # what a point may change (None: the method's)
+    "race": None, "population": None, "full_start": None,
+    "halving": False}  # what a point may change (None: the method's)
 DEFAULT = (SETTINGS["budget"], SEARCH | {"halving": SETTINGS["halving"]})  # the existence table's point
+METHOD_SETTINGS = ("population", "full_start")  # a point's changes that are its method's settings
+FROM = {"zero": "w = 0", "tiled": "the tiled search's best"}  # the portfolio's full_start, said
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
@@ -67,6 +72,8 @@ def folder_name(budget: int, search: dict) -> str:
         changed.append(search["subspace"])
     if search["method"] != SEARCH["method"]:
         changed.append(search["method"].replace("-", "_"))
+    if search["full_start"] is not None:
+        changed.append(f"start_{search['full_start']}")
     return "-".join([str(budget), *changed])
 
 
@@ -84,6 +91,8 @@ def point_of(name: str) -> tuple[int, dict]:
             search["halving"] = True
         elif part in ("full", "tiled"):
             search["subspace"] = part
+        elif part.startswith("start_"):
+            search["full_start"] = part.removeprefix("start_")
         else:
             search["method"] = part.replace("_", "-")
     return int(budget), search
@@ -102,15 +111,16 @@ def search_label(search: dict) -> str:
             "" if search["validation_seeds"] == SEARCH["validation_seeds"] else
             f"{search['validation_seeds']} validation seeds",
             "" if search["population"] is None else f"{search['population']} tickets a generation",
+            "" if search["full_start"] is None else f"the full search from {FROM[search['full_start']]}",
             "halved" if search["halving"] else ""]
     return ", ".join(filter(None, said))
 
 
 def settings_of(search: dict) -> dict:
-    """The search settings of a point's search: a population is the method's setting."""
-    population = search["population"]
-    return {k: v for k, v in search.items() if k != "population"} | (
-        {} if population is None else {"optimizer": {"population": population}})
+    """The search settings of a point's search: a population and a full search's start are the
+    method's settings."""
+    own = {k: search[k] for k in METHOD_SETTINGS if search[k] is not None}
+    return {k: v for k, v in search.items() if k not in METHOD_SETTINGS} | ({"optimizer": own} if own else {})
 
 
 def budget_rows(budget: int, search: dict, workers: int) -> list[dict]:
@@ -240,6 +250,8 @@ def main() -> None:
                         help="seeds the search's best tickets are validated on")
     parser.add_argument("--population", type=int, default=None,
                         help="tickets a generation, for the methods that have generations")
+    parser.add_argument("--full-start", choices=FULL_STARTS, default=None,
+                        help="where the portfolio's full search starts (its full_start)")
     parser.add_argument("--halving", action="store_true",
                         help="spend search and validation episodes by sequential halving (search --halving)")
     parser.add_argument("--workers", type=int, default=2)

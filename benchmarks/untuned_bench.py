@@ -50,7 +50,9 @@ REFERENCES = {"authors-ticket": "the authors' shipped ticket",  # kind -> label 
 SLOW = {"heldout": 50, "fresh_ranges": 1}  # franka_sim: 4-5 s an episode on one core
 JUDGING = {name: SLOW if name.startswith("franka-") else {} for name in PAIRS}  # the verdict and fresh check
 SEARCHES = {"default": {},  # the `search` defaults: CMA-ES over a tiled ticket
-            "portfolio": {"method": "portfolio", "subspace": "full"}}  # a tiled and a full CMA-ES
+            "portfolio": {"method": "portfolio", "subspace": "full"},  # a tiled and a full CMA-ES
+            "portfolio-from-tiled": {"method": "portfolio", "subspace": "full",  # its full search starting
+                                     "optimizer": {"full_start": "tiled"}}}  # at the tiled one's best
 
 
 def on_path(folder: Path) -> None:

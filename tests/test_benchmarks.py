@@ -136,9 +136,17 @@ def test_budget_curve_names_a_method_race_and_validation_in_its_folder():
     assert budget_curve.command(halved, [{"budget": 300} | halved]).endswith(flags)
     smaller = budget_curve.SEARCH | {"population": 10}
     assert budget_curve.point_of(budget_curve.folder_name(850, smaller)) == (850, smaller)
+    own = ("population", "full_start")  # the method's settings
     assert budget_curve.settings_of(smaller) == {k: v for k, v in budget_curve.SEARCH.items()
-                                                 if k != "population"} | {"optimizer": {"population": 10}}
-    assert budget_curve.settings_of(search) == {k: v for k, v in search.items() if k != "population"}
+                                                 if k not in own} | {"optimizer": {"population": 10}}
+    assert budget_curve.settings_of(search) == {k: v for k, v in search.items() if k not in own}
+    started = budget_curve.SEARCH | {"method": "portfolio", "subspace": "full", "full_start": "tiled"}
+    name = budget_curve.folder_name(1100, started)
+    assert name == "1100-full-portfolio-start_tiled" and budget_curve.point_of(name) == (1100, started)
+    said = "portfolio, the full search from the tiled search's best"
+    assert budget_curve.search_label(started).endswith(said)
+    assert budget_curve.settings_of(started)["optimizer"] == {"full_start": "tiled"}
+    assert budget_curve.command(started, [{"budget": 1100} | started]).endswith("--full-start tiled`")
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():

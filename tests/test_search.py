@@ -401,6 +401,23 @@ def test_perfect_means_every_episode_succeeded_whatever_the_objective():
     assert result.stopped_because == "k perfect tickets" and result.episodes_used == 10 * 25
 
 
+def test_portfolios_full_search_starts_at_w_0_or_at_the_tiled_searchs_best():
+    def first_full(full_start: str) -> tuple[np.ndarray, np.ndarray]:
+        """The tiled generation's best ticket (its first entry the largest) and the full one's tickets."""
+        opt = make_optimizer("portfolio", SHAPE, SEEDS, np.random.default_rng(0), population=6,
+                             full_start=full_start)
+        tiled = opt.ask()
+        opt.tell(tiled, returns_by_ticket(tiled))
+        return max(tiled, key=lambda q: q.ticket[0, 0]).ticket, np.array([q.ticket for q in opt.ask()])
+
+    best, from_best = first_full("tiled")
+    _, from_zero = first_full("zero")
+    assert not (from_best == from_best[:, :1]).all() and np.abs(best).max() > 0.1
+    assert np.abs(from_best - from_zero - best).max() < 1e-4  # the same draws, moved by the tiled best
+    with pytest.raises(UserError, match="full_start must be one of"):
+        make_optimizer("portfolio", SHAPE, SEEDS, np.random.default_rng(0), full_start="best")
+
+
 def test_portfolio_asks_the_same_tickets_when_linear_algebras_last_bits_differ(monkeypatch):
     """Another CPU's kernels: every eigendecomposition CMA-ES makes moves by a few last bits."""
     shape = (8, 4)  # the full search's covariance is updated through eigendecompositions

@@ -12,6 +12,7 @@ from goldenticket.options import check_types, option
 METHODS: dict[str, type] = {}  # a search method's name -> the dataclass of its settings
 SELF_RACING = ("cem-racing", "cem-bounds")  # methods that race their own tickets: no race, no halving
 OWN_TILING = ("portfolio", "tiled-then-full")  # methods that search tiled tickets themselves: full sub-space
+FULL_STARTS = ("zero", "tiled")  # where the portfolio's full search starts
 
 
 def method(name: str):
@@ -119,8 +120,8 @@ class PortfolioSettings:
     """Two CMA-ES searches, one over a tiled ticket (one action-sized vector repeated along the
     horizon), one over the full ticket, a generation at a time: one generation of each, then each
     generation to the tiled one unless the full one's best ticket beats its best on the search seeds
-    by a paired sign test at p < `alpha`, every `explore`-th to the other one (run with the full
-    sub-space)."""
+    by a paired sign test at p < `alpha`, every `explore`-th to the other one; the full one starts
+    at w = 0 or at the tiled one's best (`full_start`) (run with the full sub-space)."""
 
     population: int = option(20, "tickets per generation, in both searches")
     sigma_init: float = option(1.0, "both searches' initial step size")
@@ -128,6 +129,9 @@ class PortfolioSettings:
                           "must beat the tiled search's best to take the next generation")
     explore: int = option(5, "every explore-th generation after the first two goes to the search the "
                           "test did not choose (0: never)")
+    full_start: str = option("zero", "where the full search starts: zero (w = 0) or tiled (the tiled "
+                             "search's best ticket, repeated along the horizon, when the full search "
+                             "takes its first generation)")
 
 
 @dataclass(frozen=True)

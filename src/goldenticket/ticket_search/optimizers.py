@@ -19,6 +19,7 @@ import numpy as np
 from goldenticket.errors import UserError
 from goldenticket.stats import sign_test
 from goldenticket.ticket_search.methods import (
+    FULL_STARTS,
     CEMBoundsSettings,
     CEMRacingSettings,
     CEMSettings,
@@ -408,7 +409,9 @@ class Portfolio(_Base):
     chunk. Random full tickets often look better than random tiled ones at first and the tiled
     search overtakes them, so the full one takes the budget only on clear evidence. Asks full
     (H, A) tickets: tiled ones come repeated along the horizon, both searches' on a grid
-    (`GriddedCMAES`)."""
+    (`GriddedCMAES`). The full search starts at w = 0, or (`full_start` "tiled") at the tiled
+    search's best ticket when it takes its first generation, so that it goes on from where the tiled
+    one got to."""
 
     def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
                  settings: PortfolioSettings | None = None, **params):
@@ -416,23 +419,33 @@ class Portfolio(_Base):
         s = _settings(PortfolioSettings, settings, params)
         _require(0 < s.alpha < 1, f"alpha must be in (0, 1), got {s.alpha}")
         _require(s.explore >= 0, f"explore must be >= 0, got {s.explore}")
-        searches = {"tiled": (1, self.noise_shape[1]), "full": self.noise_shape}
-        self.searches = {name: GriddedCMAES(shape, seeds, rng, population=s.population,
-                                            sigma_init=s.sigma_init) for name, shape in searches.items()}
-        self.best = dict.fromkeys(self.searches, np.full(len(self.seeds), -math.inf))  # returns by seed
+        _require(s.full_start in FULL_STARTS, f"full_start must be one of {FULL_STARTS}, "
+                                              f"got {s.full_start!r}")
+        self.searches = {"tiled": self._search((1, self.noise_shape[1]), s)}  # the full one: at its first ask
+        self.best = {name: np.full(len(self.seeds), -math.inf) for name in ("tiled", "full")}  # by seed
+        self.best_ticket = np.zeros(self.noise_shape)  # the tiled search's best, along the horizon
         self.settings, self.generations = s, []  # the search each generation went to
 
+    def _search(self, shape: tuple[int, int], s: PortfolioSettings, mean: np.ndarray | None = None):
+        return GriddedCMAES(shape, self.seeds, self.rng, population=s.population, sigma_init=s.sigma_init,
+                            mean=mean)
+
     def ask(self) -> list[Query]:
-        self.generations.append(self._next())
-        asked = self.searches[self.generations[-1]].ask()
+        self.generations.append(name := self._next())
+        if name not in self.searches:
+            start = self.best_ticket if self.settings.full_start == "tiled" else None
+            self.searches[name] = self._search(self.noise_shape, self.settings, start)
+        asked = self.searches[name].ask()
         return self._queries(np.broadcast_to(q.ticket, (self.noise_shape[0], q.ticket.shape[1]))
                              for q in asked)
 
     def tell(self, queries: list[Query], returns: list[np.ndarray]) -> None:
         name = self.generations[-1]
-        for r in returns:
+        for query, r in zip(queries, returns, strict=True):
             if len(r) == len(self.seeds) and np.mean(r) > np.mean(self.best[name]):
                 self.best[name] = np.asarray(r, dtype=np.float64)
+                if name == "tiled":
+                    self.best_ticket = np.array(np.broadcast_to(query.ticket, self.noise_shape))
         self.searches[name].tell(queries, returns)
 
     def _next(self) -> str:
