@@ -2,16 +2,20 @@
 
     python benchmarks/untuned_bench.py                        # every pair, the default search
     python benchmarks/untuned_bench.py --pairs franka-1003 --search portfolio
+    python benchmarks/untuned_bench.py --pairs fetch-push --budgets 250 500 2500  # the budget curve
     lerobot-venv/bin/python benchmarks/untuned_bench.py --pairs smolvla-drawer-open lerobot-reach
 
 Each pair is searched and judged as the existence table does it (`existence.run_pair`: the `search`
 defaults, the best ticket judged again with the base and the zero ticket on two ranges of 200 fresh
-held-out seeds that no search or choice saw), under each search named by --search. The paper
+held-out seeds that no search or choice saw), under each search named by --search, within each
+number of search and validation episodes named by --budgets (the default's 1250, or 250, 500 or
+2500: the search budget 150 below it, search and validation halved). The paper
 authors' franka_sim checkpoints 1002 and 1003 come from ../shared/franka_sim (their env and
 checkpoints as module:factory, MIT licence; needs `pip install dm-robotics-transformations`); their
 shipped ticket is judged on the same fresh seeds beside ours. Each pair's row is kept in
-benchmarks/results/untuned_bench/<search>/<pair>.json once judged, so a run resumes pair by pair;
-its run folder under benchmarks/runs/untuned/<search>/ resumes its episodes. The LeRobot examples'
+benchmarks/results/untuned_bench/<arm>/<pair>.json once judged (<arm>: the search, then @<budget>
+where the budget is not 1250), so a run resumes pair by pair; its run folder under
+benchmarks/runs/untuned/<arm>/ resumes its episodes. The LeRobot examples'
 pairs (the SmolVLA, the UNet diffusion policy on reach) run in LeRobot's venv, their shipped tickets
 judged beside ours. Results:
 benchmarks/results/untuned_bench.{md,json}.
@@ -49,6 +53,8 @@ REFERENCES = {"authors-ticket": "the authors' shipped ticket",  # kind -> label 
               "shipped-ticket": "the example's ticket before this bench"}
 SLOW = {"heldout": 50, "fresh_ranges": 1}  # franka_sim: 4-5 s an episode on one core
 JUDGING = {name: SLOW if name.startswith("franka-") else {} for name in PAIRS}  # the verdict and fresh check
+TOTAL = 1250  # the defaults' search and validation episodes at most
+SEARCH_BUDGETS = {250: 100, 500: 350, TOTAL: 1100, 2500: 2350}  # that, halved -> the search's budget
 SEARCHES = {"default": {},  # the `search` defaults: CMA-ES over a tiled ticket
             "portfolio": {"method": "portfolio", "subspace": "full"},  # a tiled and a full CMA-ES
             "portfolio-from-tiled": {"method": "portfolio", "subspace": "full",  # its full search starting
@@ -61,14 +67,28 @@ def on_path(folder: Path) -> None:
     os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(folder), os.environ.get("PYTHONPATH")]))
 
 
-def pair_row(name: str, search: str, workers: int) -> None:
-    """The pair's row under `search`, searched, judged and kept, unless kept already."""
-    path = ROWS / search / f"{name}.json"
+def arm_name(search: str, total: int) -> str:
+    """Where a search within `total` search and validation episodes keeps its rows and runs."""
+    return search if total == TOTAL else f"{search}@{total}"
+
+
+def arm_of(arm: str) -> tuple[str, int]:
+    """The search and budget of an `arm_name`."""
+    search, _, total = arm.partition("@")
+    return search, int(total or TOTAL)
+
+
+def pair_row(name: str, search: str, total: int, workers: int) -> None:
+    """The pair's row under `search` within `total` episodes, searched, judged and kept, unless kept
+    already."""
+    arm = arm_name(search, total)
+    path = ROWS / arm / f"{name}.json"
     if not path.exists():
         task, policy = PAIRS[name]
-        print(f"[{search}] {name}", flush=True)
-        runs = HERE / "runs" / "untuned" / search
-        summary = run_pair(task, policy, runs, workers, **SEARCHES[search] | JUDGING[name])
+        print(f"[{arm}] {name}", flush=True)
+        runs = HERE / "runs" / "untuned" / arm
+        budget = {} if total == TOTAL else {"budget": SEARCH_BUDGETS[total], "halving": True}
+        summary = run_pair(task, policy, runs, workers, **SEARCHES[search] | budget | JUDGING[name])
         row = table_row(summary)
         row |= {"deliver": summary["deliver"],
                 "episode_seconds": episode_seconds(run_folder(runs, policy), row["ticket"])}
@@ -124,13 +144,45 @@ def markdown(rows: dict, references: dict) -> str:
         for (pair, search), r in rows.items():
             if pair == name:
                 cost = f"{r['search_and_validation']} | {r['episode_seconds'] / 60:.0f} min"
-                lines += [range_line(name, f"{search}: {delivered(r)}", r[key], cost, r["deliver"] == "base")
-                          for key in FRESH_RANGES if key in r]
+                lines += [range_line(name, f"{arm_label(search)}: {delivered(r)}", r[key], cost,
+                                     r["deliver"] == "base") for key in FRESH_RANGES if key in r]
         for kind, label in REFERENCES.items():
             theirs = references.get(kind, {}).get(name, {})
             lines += [range_line(name, f"{label}, {theirs['ticket']}", theirs[key], "- | -")
                       for key in FRESH_RANGES if key in theirs]
+    return "\n".join(lines) + "\n" + curve_markdown(rows)
+
+
+def arm_label(arm: str) -> str:
+    search, total = arm_of(arm)
+    return search if total == TOTAL else f"{search} within {total}"
+
+
+def curve_markdown(rows: dict) -> str:
+    """The budget curve: per pair searched within more than one budget, and per search, what it
+    delivers on each fresh range (or "-") within each budget."""
+    curves: dict = {}
+    for (name, arm), r in rows.items():
+        search, total = arm_of(arm)
+        curves.setdefault((name, search), {})[total] = r
+    totals = sorted({total for curve in curves.values() for total in curve})
+    kept = {key: curve for key, curve in curves.items() if len(curve) > 1}
+    if not kept:
+        return ""
+    lines = ["", "The budget curve: what each search delivers within each number of search and validation "
+             "episodes (its rate on each fresh range):", "",
+             "| pair | search | " + " | ".join(map(str, totals)) + " |", "|---|---|" + "---|" * len(totals)]
+    for (name, search), curve in kept.items():
+        cells = [" / ".join(f"{delivered_rate(curve[t], key):.1%}" for key in FRESH_RANGES if key in curve[t])
+                 if t in curve else "-" for t in totals]
+        lines.append(f"| {name} | {search} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def delivered_rate(row: dict, key: str) -> float:
+    """What the delivered arm succeeds on a fresh range: the base's rate where the base is delivered."""
+    fresh = row[key]
+    return fresh["base"]["success_rate"] if row["deliver"] == "base" else fresh["success_rate"]
 
 
 def delivered(row: dict) -> str:
@@ -153,16 +205,20 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", nargs="+", choices=list(PAIRS), default=list(PAIRS))
     parser.add_argument("--search", nargs="+", choices=list(SEARCHES), default=["default"])
+    parser.add_argument("--budgets", nargs="+", type=int, choices=list(SEARCH_BUDGETS), default=[TOTAL],
+                        help="search and validation episodes at most")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     on_path(FRANKA)
     on_path(HERE.parent)  # the examples' policies and envs, named as the CLI names them
     for name in args.pairs:
         for search in args.search:
-            pair_row(name, search, args.workers)
+            for total in args.budgets:
+                pair_row(name, search, total, args.workers)
         reference_row(name, args.search[0], args.workers)
-    kept = {(p.stem, p.parent.name): json.loads(p.read_text()) for p in sorted(ROWS.glob("*/*.json"))
-            if p.parent.name in SEARCHES}
+    kept = {(p.stem, p.parent.name): json.loads(p.read_text())
+            for p in sorted(ROWS.glob("*/*.json"), key=lambda p: arm_of(p.parent.name))
+            if arm_of(p.parent.name)[0] in SEARCHES}
     references = {kind: {p.stem: json.loads(p.read_text()) for p in sorted(ROWS.glob(f"{kind}/*.json"))}
                   for kind in REFERENCES}
     record = {"pairs": {f"{n}/{s}": r for (n, s), r in kept.items()}}

@@ -451,3 +451,21 @@ def test_untuned_bench_says_what_the_job_delivers_and_sets_the_authors_ticket_be
     rates = "| 1000200:1000400 | 50.0% [45%, 55%] | 45.0% [40%, 50%] | 90.0% [85%, 95%] | 1e-06 | 1e-07 |"
     assert rates in lines[0]
     assert "95.0%" in lines[3] and lines[0].endswith("| 1200 | 10 min |")
+
+
+def test_untuned_bench_draws_each_searchs_budget_curve():
+    assert untuned_bench.arm_name("default", 1250) == "default"
+    assert untuned_bench.arm_of(untuned_bench.arm_name("portfolio", 250)) == ("portfolio", 250)
+    seeds = {"seeds": [1000200, 1000399]}
+    small = _row(0.5, 0.45, 0.7, 1e-3, 1e-3) | {"ticket": "abc", "episode_seconds": 60, "deliver": "ticket"}
+    large = _row(0.5, 0.45, 0.9, 1e-6, 1e-7) | {"ticket": "def", "episode_seconds": 600, "deliver": "base"}
+    for row in (small, large):
+        row["fresh"], row["fresh_2"] = row["fresh"] | seeds, row["fresh_2"] | seeds
+    rows = {("fetch-push", "default@250"): small, ("fetch-push", "default"): large,
+            ("franka-1003", "default"): large}
+    table = untuned_bench.markdown(rows, {})
+    assert "| fetch-push | default within 250: ticket abc |" in table
+    curve = table.split("The budget curve")[1].splitlines()
+    assert curve[2] == "| pair | search | 250 | 1250 |"
+    assert curve[4] == "| fetch-push | default | 70.0% / 70.0% | 50.0% / 50.0% |"  # the base, delivered
+    assert len(curve) == 5  # franka-1003 has one budget: no curve
