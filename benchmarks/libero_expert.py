@@ -6,16 +6,18 @@ with a demonstrator's habits. In LeRobot's venv (README, "LeRobot"):
 Each of LIBERO-Object's tasks runs the expert (`goldenticket.tasks.libero_experts`) on its first
 --seeds training seeds, as `goldenticket.train.collect_demos` runs it (the same experts, habits drawn
 from one seeded generator per task and style, the same episodes), with 32 x 32 camera frames, which
-the expert does not read. Writes benchmarks/results/libero_expert.{md,json}.
+the expert does not read. Writes benchmarks/results/libero_expert.{md,json} as each task ends;
+a task measured there before (with the same styles and seeds) is kept, not run again.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
 import numpy as np
-from results_files import write_results
+from results_files import RESULTS, write_results
 
 from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
@@ -41,6 +43,16 @@ def measure(task_id: int, style: DemoStyle, seeds: range) -> dict:
     return {"task": task.name, "instruction": task.instruction, "episodes": episodes}
 
 
+def kept_rows(styles: dict, seeds: range) -> dict:
+    """The tasks measured before with these styles on these seeds: {task: {style: row}}."""
+    path = RESULTS / "libero_expert.json"
+    record = json.loads(path.read_text()) if path.is_file() else {}
+    if record.get("styles") != styles:
+        return {}
+    return {name: by_style for name, by_style in record["tasks"].items()
+            if all([e["seed"] for e in r["episodes"]] == list(seeds) for r in by_style.values())}
+
+
 def markdown(rows: dict) -> str:
     lines = ["| task | instruction | " + " | ".join(STYLES)
              + " | steps (no habits) | s an episode (no habits) |",
@@ -62,13 +74,18 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="+", type=int, default=list(range(10)), choices=range(10))
     parser.add_argument("--seeds", type=int, default=10, help="first training seeds per task")
     args = parser.parse_args()
-    start, seeds = time.perf_counter(), seeds_in("train", args.seeds)
-    rows = {}
+    seeds = seeds_in("train", args.seeds)
+    styles = {label: style.describe() for label, style in STYLES.items()}
+    rows = kept_rows(styles, seeds)
     for task_id in args.tasks:  # the results gain each task as it ends
-        rows[f"libero/object/{task_id}"] = {label: measure(task_id, style, seeds)
-                                            for label, style in STYLES.items()}
-        record = {"styles": {label: style.describe() for label, style in STYLES.items()}, "tasks": rows,
-                  "wall_time_s": round(time.perf_counter() - start)}
+        name = f"libero/object/{task_id}"
+        if name in rows:
+            continue
+        rows[name] = {label: measure(task_id, style, seeds) for label, style in STYLES.items()}
+        rows = dict(sorted(rows.items(), key=lambda item: int(item[0].rsplit("/", 1)[1])))
+        seconds = sum(e["seconds"] for by_style in rows.values() for r in by_style.values()
+                      for e in r["episodes"])
+        record = {"styles": styles, "tasks": rows, "episode_seconds": round(seconds)}
         table = markdown(rows)
         write_results("libero_expert", record, table)
         print(table.splitlines()[-3], flush=True)
