@@ -15,7 +15,7 @@ from goldenticket.cli import main
 from goldenticket.errors import UserError
 from goldenticket.policies import load_policy
 from goldenticket.tasks import get_task
-from goldenticket.tasks.base import observation_digest
+from goldenticket.tasks.base import observation_digest, stack
 from goldenticket.tickets import Ticket
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -149,6 +149,26 @@ def test_the_libero_object_expert_puts_the_object_in_the_basket():
     small = {"observation_height": 32, "observation_width": 32}  # frames the expert does not read
     demos = collect_demos(get_task("libero/object/3", env_options=small), 1, DemoStyle())
     assert demos.attempts == 1 and demos.actions[0].shape[1] == 7
+
+
+def test_the_libero_smolvla_recipe_writes_what_a_libero_task_gives_the_policy(libero_task):
+    """examples/smolvla_libero_train.py writes each observation under the key, in the shape and with the
+    values LeRobot's eval gives a policy: as lerobot-train reads the dataset, the task's observations."""
+    from lerobot.utils.feature_utils import dataset_to_policy_features
+
+    from examples.smolvla_libero_train import RECIPE
+    from examples.smolvla_recipe import at, feature
+
+    observation = libero_task.make_env().reset(0)
+    given, episode = lerobot_frame(observation, libero=False), stack([observation])
+    features = dataset_to_policy_features({key: feature(at(episode, keys))
+                                           for key, keys in RECIPE.observations.items()})
+    assert {key: tuple(f.shape) for key, f in features.items()} == libero_task.observation_shapes
+    for key, keys in RECIPE.observations.items():
+        written = at(episode, keys)[0]
+        if written.dtype == np.uint8:  # read channel first in [0, 1], as eval gives frames
+            written = written.transpose(2, 0, 1) / np.float32(255)
+        np.testing.assert_array_equal(given[key][0].numpy(), written)
 
 
 def test_a_libero_task_without_a_scripted_expert_is_refused_in_one_line():

@@ -4,7 +4,9 @@ they run in LeRobot's venv (README, "LeRobot") and are skipped without it."""
 
 import importlib.util
 import json
+import shutil
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import gymnasium as gym
@@ -225,6 +227,24 @@ def test_a_checkpoint_whose_backbone_is_not_on_disk_names_what_to_download(tmp_p
     line = capsys.readouterr().err.strip()
     assert "needs the backbone 'HuggingFaceTB/SmolVLM2' on disk" in line and "hf download" in line
     assert len(line.splitlines()) == 1
+
+
+def test_a_shipped_smolvla_carries_its_backbone_and_keeps_its_model_card(tmp_path, backbone):
+    """The training examples' last step (examples/smolvla_recipe.py): the checkpoint with the backbone
+    inside it and named relative to it, so that it runs wherever the folder goes; a card there stays."""
+    from examples.smolvla_recipe import CARD, ship
+    from examples.smolvla_train import RECIPE
+
+    own = shutil.copytree(backbone, tmp_path / "backbone")
+    recipe = replace(RECIPE, policy_dir=tmp_path / "shipped")
+    recipe.policy_dir.mkdir()
+    (recipe.policy_dir / CARD).write_text("card\n")
+    ship(recipe, smolvla(tmp_path / "checkpoint", own), own)
+    shutil.rmtree(own)
+    moved = recipe.policy_dir.rename(tmp_path / "elsewhere")
+    assert (moved / CARD).read_text() == "card\n"
+    policy = load_policy(str(moved))
+    assert rollout(policy, get_task(two_cameras), [Episode(Constant(np.zeros((10, 32))), 1)])[0].length > 0
 
 
 def test_a_pi0_whose_tokenizer_is_not_on_disk_names_what_to_download(tmp_path, tiny_paligemma, capsys):
