@@ -170,13 +170,21 @@ def curve_markdown(rows: dict) -> str:
     if not kept:
         return ""
     lines = ["", "The budget curve: what each search delivers within each number of search and validation "
-             "episodes (its rate on each fresh range):", "",
+             "episodes (its rate on each fresh range; the base or the zero ticket named where it is the "
+             "one delivered):", "",
              "| pair | search | " + " | ".join(map(str, totals)) + " |", "|---|---|" + "---|" * len(totals)]
     for (name, search), curve in kept.items():
-        cells = [" / ".join(f"{delivered_rate(curve[t], key):.1%}" for key in FRESH_RANGES if key in curve[t])
-                 if t in curve else "-" for t in totals]
+        cells = [curve_cell(curve[t]) if t in curve else "-" for t in totals]
         lines.append(f"| {name} | {search} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def curve_cell(row: dict) -> str:
+    """A budget curve's cell: the delivered arm's rate on each fresh range, and which arm it is where
+    it is the base or the zero ticket."""
+    rates = " / ".join(f"{delivered_rate(row, key):.1%}" for key in FRESH_RANGES if key in row)
+    arm = "the base" if row["deliver"] == "base" else "the zero ticket" if row["zero_ticket"] else ""
+    return f"{rates} ({arm})" if arm else rates
 
 
 def delivered_rate(row: dict, key: str) -> float:

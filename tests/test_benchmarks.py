@@ -467,5 +467,5 @@ def test_untuned_bench_draws_each_searchs_budget_curve():
     assert "| fetch-push | default within 250: ticket abc |" in table
     curve = table.split("The budget curve")[1].splitlines()
     assert curve[2] == "| pair | search | 250 | 1250 |"
-    assert curve[4] == "| fetch-push | default | 70.0% / 70.0% | 50.0% / 50.0% |"  # the base, delivered
+    assert curve[4] == "| fetch-push | default | 70.0% / 70.0% | 50.0% / 50.0% (the base) |"
     assert len(curve) == 5  # franka-1003 has one budget: no curve
