@@ -1,5 +1,5 @@
-"""Demonstrations from scripted experts (Meta-World's, robomimic's Lift, Can and Square, LIBERO-Object's),
-and deterministic policy training."""
+"""Demonstrations from scripted experts (Meta-World's, robomimic's Lift, Can, Square and Transport,
+LIBERO-Object's), and deterministic policy training."""
 
 from __future__ import annotations
 
