@@ -2,9 +2,10 @@
 `smolvla_libero_train.py` for LIBERO-Object), in the LeRobot venv:
 
 1. A SmolVLM backbone of the "small" size in `smolvla_backbone.py`, written offline.
-2. The recipe's demonstrations (`goldenticket.train.collect_demos`) written as one LeRobotDataset
-   (`LeRobotDataset.create`, `add_frame`, `save_episode`, the task's instruction as each frame's
-   "task") in a local folder, with what collecting them took in `demos.json` beside it.
+2. The recipe's demonstrations (`goldenticket.train.collect_demos`), kept per task as they land,
+   written as one LeRobotDataset (`LeRobotDataset.create`, `add_frame`, `save_episode`, the task's
+   instruction as each frame's "task") in a local folder, with what collecting them took in
+   `demos.json` beside it.
 3. `lerobot-train` on the CPU without wandb; rerunning resumes from its last checkpoint, and
    `training.json` adds up the seconds it ran.
 4. The recipe's checkpoint ships, with the backbone folder inside the policy folder, where
@@ -69,41 +70,60 @@ def feature(array: np.ndarray) -> dict:
     return {"dtype": "float32", "shape": array.shape[1:], "names": None}
 
 
-def frames(recipe: Recipe, observations: dict, actions: np.ndarray, instruction: str):
-    """One episode's frames as `LeRobotDataset.add_frame` takes them."""
-    arrays = {key: at(observations, keys) for key, keys in recipe.observations.items()} | {"action": actions}
-    for t in range(len(actions)):
+def frames(episode: dict[str, np.ndarray], instruction: str):
+    """One episode's frames (its dataset features' arrays) as `LeRobotDataset.add_frame` takes them."""
+    for t in range(len(episode["action"])):
         frame = {key: value[t] if value.dtype == np.uint8 else value[t].astype(np.float32)
-                 for key, value in arrays.items()}
+                 for key, value in episode.items()}
         yield frame | {"task": instruction}
 
 
-def make_dataset(recipe: Recipe, root: Path) -> None:
-    """The demonstrations of every task as one LeRobotDataset at `root` (a new folder), and
-    `demos.json` beside it: each task's instruction, attempts and collection time."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    dataset, record = None, {}
-    for name in recipe.tasks:
+def task_demos(recipe: Recipe, name: str, folder: Path) -> tuple[list[dict[str, np.ndarray]], dict]:
+    """One task's demonstrations (each episode's dataset features' arrays) and its record: instruction,
+    attempts, collection seconds. Kept in `folder` as each task lands, so a stopped run collects only
+    the tasks still missing."""
+    arrays, record = folder / f"{name.replace('/', '-')}.npz", folder / f"{name.replace('/', '-')}.json"
+    if not record.is_file():
         task = get_task(name, env_options=recipe.task_options)
         start = time.perf_counter()
         demos = collect_demos(task, recipe.demos, recipe.style)
         seconds = time.perf_counter() - start
-        if dataset is None:
-            first = demos.obs[0]
-            features = {key: feature(at(first, keys)) for key, keys in recipe.observations.items()}
-            features["action"] = feature(demos.actions[0])
-            dataset = LeRobotDataset.create(f"local/{recipe.name}", fps=recipe.fps, features=features,
-                                            root=root, use_videos=False)
-        for observations, actions in zip(demos.obs, demos.actions, strict=True):
-            for frame in frames(recipe, observations, actions, task.instruction):
+        features = recipe.observations.items()
+        episodes = [{key: at(observations, keys) for key, keys in features} | {"action": actions}
+                    for observations, actions in zip(demos.obs, demos.actions, strict=True)]
+        folder.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(arrays, **{f"{i}|{key}": value for i, episode in enumerate(episodes)
+                                       for key, value in episode.items()})
+        record.write_text(json.dumps({"instruction": task.instruction, "demos": recipe.demos,
+                                      "attempts": demos.attempts, "seconds": round(seconds, 1)}) + "\n")
+        print(f"{name}: {recipe.demos} demonstrations ({demos.attempts} attempts): {task.instruction!r}")
+    with np.load(arrays) as saved:
+        episodes = [{} for _ in range(recipe.demos)]
+        for key in saved.files:
+            index, feature_key = key.split("|")
+            episodes[int(index)][feature_key] = saved[key]
+    return episodes, json.loads(record.read_text())
+
+
+def make_dataset(recipe: Recipe, work: Path) -> None:
+    """The demonstrations of every task (collected into `work`/demos) as one LeRobotDataset in
+    `work`/dataset (a new folder), and `demos.json` beside it when it is whole: each task's record."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    root = work / "dataset"
+    shutil.rmtree(root, ignore_errors=True)
+    collected = {name: task_demos(recipe, name, work / "demos") for name in recipe.tasks}
+    first = next(iter(collected.values()))[0][0]
+    dataset = LeRobotDataset.create(f"local/{recipe.name}", fps=recipe.fps, root=root, use_videos=False,
+                                    features={key: feature(value) for key, value in first.items()})
+    for episodes, record in collected.values():
+        for episode in episodes:
+            for frame in frames(episode, record["instruction"]):
                 dataset.add_frame(frame)
             dataset.save_episode()
-        record[name] = {"instruction": task.instruction, "demos": recipe.demos, "attempts": demos.attempts,
-                        "seconds": round(seconds, 1)}
-        print(f"{name}: {recipe.demos} demonstrations ({demos.attempts} attempts): {task.instruction!r}")
     dataset.finalize()
-    (root.parent / "demos.json").write_text(json.dumps(record, indent=1) + "\n")
+    (work / "demos.json").write_text(json.dumps({name: record for name, (_, record) in collected.items()},
+                                                indent=1) + "\n")
     print(f"{dataset.num_episodes} episodes, {dataset.num_frames} frames -> {root}")
 
 
@@ -142,9 +162,8 @@ def build(recipe: Recipe, work: Path) -> None:
     backbone = work / BACKBONE
     if not (backbone / "config.json").is_file():
         write_backbone(backbone, "small")
-    if not (work / "dataset" / "meta" / "info.json").is_file():
-        shutil.rmtree(work / "dataset", ignore_errors=True)
-        make_dataset(recipe, work / "dataset")
+    if not (work / "demos.json").is_file():
+        make_dataset(recipe, work)
     start = time.perf_counter()
     pretrained = train(recipe, work / "dataset", backbone, work / "train")
     timing = work / "training.json"
