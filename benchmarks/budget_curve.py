@@ -10,12 +10,12 @@
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
 searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
 ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`,
-`--subspace`, `--method`, `--race`, `--halving`, `--validation-seeds`, `--population` and
-`--full-start` (where the portfolio's full search starts) change
+`--subspace`, `--method`, `--race`, `--halving`, `--validation-seeds`, `--population`,
+`--full-population` and `--full-start` (the portfolio's full search's tickets a generation and start) change
 the search at those budgets (a point is a budget and a search). The point at the default budget and
 search is the existence table's own. Each pair's row is kept in
 benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget, then -seedsN, -valN,
--raceP, -popN, -halving, -full, the method, its dashes written as underscores, and -start_S, where
+-raceP, -popN, -fullpopN, -halving, -full, the method, its dashes written as underscores, and -start_S, where
 they differ from the defaults), so a run resumes pair by pair, on another machine too; its run folder under
 benchmarks/runs/budget-<point>/ resumes a pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
@@ -35,17 +35,17 @@ from goldenticket.ticket_search.methods import FULL_STARTS
 
 ROWS = RESULTS / "budget_curve"
 SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {
-    "race": None, "population": None, "full_start": None,
+    "race": None, "population": None, "full_population": None, "full_start": None,
     "halving": False}  # what a point may change (None: the method's)
 DEFAULT = (SETTINGS["budget"], SEARCH | {"halving": SETTINGS["halving"]})  # the existence table's point
-METHOD_SETTINGS = ("population", "full_start")  # a point's changes that are its method's settings
+METHOD_SETTINGS = ("population", "full_population", "full_start")  # a point's changes: its method's settings
 FROM = {"zero": "w = 0", "tiled": "the tiled search's best"}  # the portfolio's full_start, said
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
           "mean_gain": "mean gain in success rate"}
 TOKENS = {"search_seeds": "seeds", "validation_seeds": "val", "race": "race",
-          "population": "pop"}  # a folder's numeric parts
+          "population": "pop", "full_population": "fullpop"}  # a folder's numeric parts
 
 
 def existence_rows() -> list[dict]:
@@ -111,13 +111,15 @@ def search_label(search: dict) -> str:
             "" if search["validation_seeds"] == SEARCH["validation_seeds"] else
             f"{search['validation_seeds']} validation seeds",
             "" if search["population"] is None else f"{search['population']} tickets a generation",
+            "" if search["full_population"] is None else
+            f"{search['full_population']} a generation of the full search",
             "" if search["full_start"] is None else f"the full search from {FROM[search['full_start']]}",
             "halved" if search["halving"] else ""]
     return ", ".join(filter(None, said))
 
 
 def settings_of(search: dict) -> dict:
-    """The search settings of a point's search: a population and a full search's start are the
+    """The search settings of a point's search: the populations and a full search's start are the
     method's settings."""
     own = {k: search[k] for k in METHOD_SETTINGS if search[k] is not None}
     return {k: v for k, v in search.items() if k not in METHOD_SETTINGS} | ({"optimizer": own} if own else {})
@@ -250,6 +252,8 @@ def main() -> None:
                         help="seeds the search's best tickets are validated on")
     parser.add_argument("--population", type=int, default=None,
                         help="tickets a generation, for the methods that have generations")
+    parser.add_argument("--full-population", type=int, default=None,
+                        help="tickets a generation of the portfolio's full search (its full_population)")
     parser.add_argument("--full-start", choices=FULL_STARTS, default=None,
                         help="where the portfolio's full search starts (its full_start)")
     parser.add_argument("--halving", action="store_true",
@@ -259,6 +263,8 @@ def main() -> None:
     args = parser.parse_args()
     if min(*args.budgets, args.workers, args.search_seeds, args.validation_seeds, args.population or 1) < 1:
         parser.error("--budgets, --search-seeds, --validation-seeds, --population and --workers must be >= 1")
+    if (args.full_population or 2) < 2:
+        parser.error("--full-population must be >= 2")
     search = {k: getattr(args, k) for k in SEARCH}
     if not args.plot_only:
         for budget in args.budgets:

@@ -136,7 +136,7 @@ def test_budget_curve_names_a_method_race_and_validation_in_its_folder():
     assert budget_curve.command(halved, [{"budget": 300} | halved]).endswith(flags)
     smaller = budget_curve.SEARCH | {"population": 10}
     assert budget_curve.point_of(budget_curve.folder_name(850, smaller)) == (850, smaller)
-    own = ("population", "full_start")  # the method's settings
+    own = ("population", "full_population", "full_start")  # the method's settings
     assert budget_curve.settings_of(smaller) == {k: v for k, v in budget_curve.SEARCH.items()
                                                  if k not in own} | {"optimizer": {"population": 10}}
     assert budget_curve.settings_of(search) == {k: v for k, v in search.items() if k not in own}
@@ -147,6 +147,11 @@ def test_budget_curve_names_a_method_race_and_validation_in_its_folder():
     assert budget_curve.search_label(started).endswith(said)
     assert budget_curve.settings_of(started)["optimizer"] == {"full_start": "tiled"}
     assert budget_curve.command(started, [{"budget": 1100} | started]).endswith("--full-start tiled`")
+    probed = started | {"full_start": None, "full_population": 10}
+    name = budget_curve.folder_name(1100, probed)
+    assert name == "1100-fullpop10-full-portfolio" and budget_curve.point_of(name) == (1100, probed)
+    assert budget_curve.settings_of(probed)["optimizer"] == {"full_population": 10}
+    assert budget_curve.command(probed, [{"budget": 1100} | probed]).endswith("--full-population 10`")
 
 
 def test_existence_pairs_cover_flow_and_both_ddim_step_counts():

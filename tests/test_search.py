@@ -418,6 +418,18 @@ def test_portfolios_full_search_starts_at_w_0_or_at_the_tiled_searchs_best():
         make_optimizer("portfolio", SHAPE, SEEDS, np.random.default_rng(0), full_start="best")
 
 
+def test_portfolios_full_search_asks_its_own_population_where_set():
+    def asked(**settings) -> tuple[int, int]:
+        opt = make_optimizer("portfolio", SHAPE, SEEDS, np.random.default_rng(0), population=6, **settings)
+        tiled = opt.ask()
+        opt.tell(tiled, returns_by_ticket(tiled))
+        return len(tiled), len(opt.ask())
+
+    assert asked() == (6, 6) and asked(full_population=3) == (6, 3)
+    with pytest.raises(UserError, match="full_population must be >= 2"):
+        make_optimizer("portfolio", SHAPE, SEEDS, np.random.default_rng(0), full_population=1)
+
+
 def test_portfolio_asks_the_same_tickets_when_linear_algebras_last_bits_differ(monkeypatch):
     """Another CPU's kernels: every eigendecomposition CMA-ES makes moves by a few last bits."""
     shape = (8, 4)  # the full search's covariance is updated through eigendecompositions

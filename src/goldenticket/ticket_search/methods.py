@@ -124,6 +124,8 @@ class PortfolioSettings:
     at w = 0 or at the tiled one's best (`full_start`) (run with the full sub-space)."""
 
     population: int = option(20, "tickets per generation, in both searches")
+    full_population: int | None = option(None, "tickets per generation of the full search (default: "
+                                         "population)")
     sigma_init: float = option(1.0, "both searches' initial step size")
     alpha: float = option(0.01, "level of the paired sign test by which the full search's best ticket "
                           "must beat the tiled search's best to take the next generation")

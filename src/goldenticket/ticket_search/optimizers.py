@@ -401,17 +401,17 @@ class TiledThenFull(_Base):
 
 class Portfolio(_Base):
     """A tiled and a full CMA-ES search sharing one budget: a generation of the tiled one, a
-    generation of the full one, then each generation to the tiled one unless the full one's best
-    ticket (by mean return on every search seed) beats the tiled one's best on those seeds by a
-    one-sided sign test at p < `alpha`, and every `explore`-th generation after the first two to
-    the one the test did not choose, so that a long search tries both. A tiled ticket (few numbers)
-    buys the most per episode where noise helps as a constant push; a full one can vary along the
-    chunk. Random full tickets often look better than random tiled ones at first and the tiled
-    search overtakes them, so the full one takes the budget only on clear evidence. Asks full
-    (H, A) tickets: tiled ones come repeated along the horizon, both searches' on a grid
-    (`GriddedCMAES`). The full search starts at w = 0, or (`full_start` "tiled") at the tiled
-    search's best ticket when it takes its first generation, so that it goes on from where the tiled
-    one got to."""
+    generation of the full one (of `full_population` tickets where set), then each generation to
+    the tiled one unless the full one's best ticket (by mean return on every search seed) beats the
+    tiled one's best on those seeds by a one-sided sign test at p < `alpha`, and every `explore`-th
+    generation after the first two to the one the test did not choose, so that a long search tries
+    both. A tiled ticket (few numbers) buys the most per episode where noise helps as a constant
+    push; a full one can vary along the chunk. Random full tickets often look better than random
+    tiled ones at first and the tiled search overtakes them, so the full one takes the budget only
+    on clear evidence. Asks full (H, A) tickets: tiled ones come repeated along the horizon, both
+    searches' on a grid (`GriddedCMAES`). The full search starts at w = 0, or (`full_start` "tiled")
+    at the tiled search's best ticket when it takes its first generation, so that it goes on from
+    where the tiled one got to."""
 
     def __init__(self, noise_shape: tuple[int, int], seeds: Sequence[int], rng: np.random.Generator,
                  settings: PortfolioSettings | None = None, **params):
@@ -419,22 +419,25 @@ class Portfolio(_Base):
         s = _settings(PortfolioSettings, settings, params)
         _require(0 < s.alpha < 1, f"alpha must be in (0, 1), got {s.alpha}")
         _require(s.explore >= 0, f"explore must be >= 0, got {s.explore}")
+        _require(s.full_population is None or s.full_population >= 2,
+                 f"full_population must be >= 2, got {s.full_population}")
         _require(s.full_start in FULL_STARTS, f"full_start must be one of {FULL_STARTS}, "
                                               f"got {s.full_start!r}")
-        self.searches = {"tiled": self._search((1, self.noise_shape[1]), s)}  # the full one: at its first ask
+        self.settings, self.generations = s, []  # the search each generation went to
+        self.searches = {"tiled": self._search((1, self.noise_shape[1]), s.population)}  # full: at 1st ask
         self.best = {name: np.full(len(self.seeds), -math.inf) for name in ("tiled", "full")}  # by seed
         self.best_ticket = np.zeros(self.noise_shape)  # the tiled search's best, along the horizon
-        self.settings, self.generations = s, []  # the search each generation went to
 
-    def _search(self, shape: tuple[int, int], s: PortfolioSettings, mean: np.ndarray | None = None):
-        return GriddedCMAES(shape, self.seeds, self.rng, population=s.population, sigma_init=s.sigma_init,
-                            mean=mean)
+    def _search(self, shape: tuple[int, int], population: int, mean: np.ndarray | None = None):
+        return GriddedCMAES(shape, self.seeds, self.rng, population=population,
+                            sigma_init=self.settings.sigma_init, mean=mean)
 
     def ask(self) -> list[Query]:
         self.generations.append(name := self._next())
         if name not in self.searches:
-            start = self.best_ticket if self.settings.full_start == "tiled" else None
-            self.searches[name] = self._search(self.noise_shape, self.settings, start)
+            s = self.settings
+            start = self.best_ticket if s.full_start == "tiled" else None
+            self.searches[name] = self._search(self.noise_shape, s.full_population or s.population, start)
         asked = self.searches[name].ask()
         return self._queries(np.broadcast_to(q.ticket, (self.noise_shape[0], q.ticket.shape[1]))
                              for q in asked)
