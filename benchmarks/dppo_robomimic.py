@@ -1,6 +1,6 @@
 """A DPPO checkpoint trained here on robomimic demonstrations, then measured.
 
-Collects scripted-expert demonstrations on robomimic/lift (or robomimic/can), fits DPPO's
+Collects scripted-expert demonstrations on robomimic/lift (can, square or transport), fits DPPO's
 normalization to them and pre-trains DPPO's DiffusionMLP as DPPO's robomimic pre-training does (Ren
 et al., "Diffusion Policy Policy Optimization", arXiv:2409.00588; github.com/irom-princeton/dppo):
 - data as DPPO's script/dataset/process_robomimic_dataset.py and agent/dataset/sequence.py make it:
@@ -8,16 +8,20 @@ et al., "Diffusion Policy Policy Optimization", arXiv:2409.00588; github.com/iro
   scaled to [-1, 1] by 2 (x - min) / (max - min + 1e-6) - 1, and one training pair per step t whose
   chunk of horizon_steps actions ends inside its episode (DPPO's StitchedSequenceDataset pads
   nothing: the last horizon_steps - 1 steps of an episode start no chunk);
-- cfg/robomimic/pretrain/<task>/pre_diffusion_mlp.yaml's network and training: horizon_steps 4,
-  cond_steps 1, denoising_steps 20 (cosine schedule), DiffusionMLP with time_dim 16, mlp_dims
-  [512, 512, 512], residual_style True (Mish); epsilon prediction (t uniform over the 20 timesteps);
-  AdamW, batch 256, learning rate 1e-4, weight decay 1e-6, DPPO's cosine schedule per epoch (linear
-  warm-up from 1e-5 over 100 epochs, then down to 1e-5 at the last epoch); EMA with decay 0.995,
-  updated every 10 batches, the weights themselves until epoch 20; act_steps 4 (DPPO's eval configs).
+- cfg/robomimic/pretrain/<task>/pre_diffusion_mlp.yaml's network and training: cond_steps 1,
+  denoising_steps 20 (cosine schedule), a residual DiffusionMLP (Mish) of the task's size (RECIPES:
+  horizon_steps 4, time_dim 16, mlp_dims [512, 512, 512] on Lift and Can; time_dim 32, mlp_dims
+  [1024, 1024, 1024] and cond_mlp_dims [512, 64] on Square; horizon_steps 8, time_dim 32, mlp_dims
+  [1024, 1024, 1024] on Transport); epsilon prediction (t uniform over the 20 timesteps); AdamW,
+  batch 256, learning rate 1e-4, weight decay 1e-6, DPPO's cosine schedule per epoch (linear warm-up
+  from 1e-5 over 100 epochs, then down to 1e-5 at the last epoch); EMA with decay 0.995, updated
+  every 10 batches, the weights themselves until epoch 20; act_steps = horizon_steps (DPPO's eval
+  configs).
 
 Changed: the data are scripted-expert demonstrations instead of robomimic's human ones, few and noisy
-so the policy is imperfect (RECIPES: 20 successful ones, each demonstrator aiming off-centre by up to
-2 cm, with Gaussian action noise of std 0.3 on Lift, 0.2 on Can), and training runs whole epochs
+so the policy is imperfect (RECIPES: 20 successful ones on Lift and Can, each demonstrator aiming
+off-centre by up to 2 cm, with Gaussian action noise of std 0.3 on Lift, 0.2 on Can; Square and
+Transport as their flow and DDIM policies in the zoo learn them), and training runs whole epochs
 making about --steps gradient steps rather than DPPO's 3000 epochs (on a few hundred chunks, 3000
 epochs are a few thousand steps); every other value is DPPO's.
 Training is deterministic for --seed on one thread (an explicit torch.Generator draws the batches,
@@ -41,11 +45,12 @@ import json
 import math
 import shutil
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+from build_zoo import ROBOMIMIC
 from results_files import RESULTS
 from torch.nn import functional
 from tqdm import tqdm
@@ -61,10 +66,33 @@ from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
 from goldenticket.train import Demos, DemoStyle, collect_demos
 
-RECIPES = {"lift": (20, DemoStyle(grasp_offset=0.02, action_noise=0.3)),  # task -> (demos, style)
-           "can": (20, DemoStyle(grasp_offset=0.02, action_noise=0.2))}
-HORIZON_STEPS, ACT_STEPS, COND_STEPS, DENOISING_STEPS = 4, 4, 1, 20
-TIME_DIM, MLP_DIMS = 16, (512, 512, 512)
+
+@dataclass(frozen=True)
+class Recipe:
+    """A task's demonstrations and DPPO's network for it: its pre_diffusion_mlp.yaml's horizon_steps,
+    time_dim, mlp_dims and cond_mlp_dims."""
+
+    demos: int
+    style: DemoStyle
+    horizon_steps: int = 4
+    time_dim: int = 16
+    mlp_dims: tuple[int, ...] = (512, 512, 512)
+    cond_mlp_dims: tuple[int, ...] | None = None
+
+    def network(self, obs_dim: int, action_dim: int) -> NetworkSpec:
+        return NetworkSpec(action_dim=action_dim, horizon_steps=self.horizon_steps,
+                           cond_dim=obs_dim * COND_STEPS, time_dim=self.time_dim, mlp_dims=self.mlp_dims,
+                           cond_mlp_dims=self.cond_mlp_dims, residual_style=True)
+
+
+WIDE = (1024, 1024, 1024)
+RECIPES = {"lift": Recipe(20, DemoStyle(grasp_offset=0.02, action_noise=0.3)),
+           "can": Recipe(20, DemoStyle(grasp_offset=0.02, action_noise=0.2)),
+           "square": Recipe(*ROBOMIMIC["robomimic/square"], time_dim=32, mlp_dims=WIDE,
+                            cond_mlp_dims=(512, 64)),
+           "transport": Recipe(*ROBOMIMIC["robomimic/transport"], horizon_steps=8, time_dim=32,
+                               mlp_dims=WIDE)}
+COND_STEPS, DENOISING_STEPS = 1, 20
 BATCH, LEARNING_RATE, WEIGHT_DECAY, MIN_LR, WARMUP_EPOCHS = 256, 1e-4, 1e-6, 1e-5, 100
 EMA_DECAY, EMA_EVERY, EMA_START = 0.995, 10, 20  # EMA_EVERY in batches, EMA_START in epochs (from 1)
 STEPS, HELDOUT, SEED = 30_000, 200, 42  # SEED: DPPO's
@@ -77,13 +105,14 @@ def normalization(demos: Demos) -> dict[str, np.ndarray]:
             "action_max": actions.max(0)}
 
 
-def dataset(demos: Demos, norm: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
+def dataset(demos: Demos, norm: dict[str, np.ndarray], horizon_steps: int
+            ) -> tuple[torch.Tensor, torch.Tensor]:
     """DPPO's training pairs, scaled to [-1, 1]: observations [N, obs_dim] and action chunks
-    [N, HORIZON_STEPS, action_dim], one per step whose chunk ends inside its episode."""
+    [N, horizon_steps, action_dim], one per step whose chunk ends inside its episode."""
     starts = [(o, a, t) for o, a in zip(demos.obs, demos.actions, strict=True)
-              for t in range(len(a) - HORIZON_STEPS + 1)]
+              for t in range(len(a) - horizon_steps + 1)]
     obs = np.stack([o[t] for o, _, t in starts])
-    chunks = np.stack([a[t : t + HORIZON_STEPS] for _, a, t in starts]).astype(np.float64)
+    chunks = np.stack([a[t : t + horizon_steps] for _, a, t in starts]).astype(np.float64)
 
     def scaled(x, low, high):
         return torch.as_tensor(2 * (x - low) / (high - low + 1e-6) - 1, dtype=torch.float32)
@@ -111,18 +140,15 @@ def epsilon_loss(network: DiffusionMLP, obs: torch.Tensor, x0: torch.Tensor, alp
     return functional.mse_loss(network(a.sqrt() * x0 + (1 - a).sqrt() * noise, t.float(), obs), noise)
 
 
-def train(obs: torch.Tensor, chunks: torch.Tensor, *, steps: int, seed: int
+def train(recipe: Recipe, obs: torch.Tensor, chunks: torch.Tensor, *, steps: int, seed: int
           ) -> tuple[DiffusionMLP, DiffusionMLP, list[float], int]:
-    """DPPO's pre-training of a DiffusionMLP on (obs, chunks) for whole shuffled epochs making about
-    `steps` gradient steps. Returns the network, its EMA, the mean loss per 1k steps (the last over
-    what remains) and the epochs run."""
+    """DPPO's pre-training of the recipe's DiffusionMLP on (obs, chunks) for whole shuffled epochs
+    making about `steps` gradient steps. Returns the network, its EMA, the mean loss per 1k steps
+    (the last over what remains) and the epochs run."""
     torch.set_num_threads(1)  # the thread count changes reduction order: part of reproducibility
     torch.manual_seed(seed)  # the initial weights
     gen = torch.Generator().manual_seed(seed)
-    spec = NetworkSpec(action_dim=chunks.shape[2], horizon_steps=HORIZON_STEPS,
-                       cond_dim=obs.shape[1] * COND_STEPS, time_dim=TIME_DIM, mlp_dims=MLP_DIMS,
-                       residual_style=True)
-    network = DiffusionMLP(spec)
+    network = DiffusionMLP(recipe.network(obs.shape[1], chunks.shape[2]))
     ema = copy.deepcopy(network)
     alphas = alphas_cumprod(DENOISING_STEPS)
     optimizer = torch.optim.AdamW(network.parameters(), lr=LEARNING_RATE, weight_decay=WEIGHT_DECAY)
@@ -155,7 +181,7 @@ def settings(demos: int, style: DemoStyle, steps: int, seed: int) -> dict:
     return {"demos": demos, "style": asdict(style), "steps": steps, "seed": seed}
 
 
-def build(task, out: Path, asked: dict) -> dict:
+def build(task, recipe: Recipe, out: Path, asked: dict) -> dict:
     """Demonstrations, training and the DPPO checkpoint in `out` from the `asked` settings; the record of it,
     also written there as training.json."""
     partial = new_folder_beside(out)
@@ -164,12 +190,12 @@ def build(task, out: Path, asked: dict) -> dict:
         demos = collect_demos(task, asked["demos"], DemoStyle(**asked["style"]), asked["seed"])
         demos_s = time.perf_counter() - start
         norm = normalization(demos)
-        obs, chunks = dataset(demos, norm)
+        obs, chunks = dataset(demos, norm, recipe.horizon_steps)
         start = time.perf_counter()
-        network, ema, losses, epochs = train(obs, chunks, steps=asked["steps"], seed=asked["seed"])
+        network, ema, losses, epochs = train(recipe, obs, chunks, steps=asked["steps"], seed=asked["seed"])
         train_s = time.perf_counter() - start
         save_checkpoint(partial, network, norm, denoising_steps=DENOISING_STEPS, cond_steps=COND_STEPS,
-                        act_steps=ACT_STEPS, epoch=epochs, ema=ema)
+                        epoch=epochs, ema=ema)  # act_steps: horizon_steps
         record = {"task": task.name, "settings": asked, "demo_attempts": demos.attempts,
                   "demo_steps": int(sum(len(a) for a in demos.actions)), "training_pairs": len(chunks),
                   "epochs": epochs, "train_steps": epochs * math.ceil(len(chunks) / BATCH),
@@ -184,9 +210,9 @@ def build(task, out: Path, asked: dict) -> dict:
     return record
 
 
-def measure(folder: Path, task, heldout: int, workers: int) -> dict:
+def measure(folder: Path, task, horizon_steps: int, heldout: int, workers: int) -> dict:
     """Base and zero-ticket success of the checkpoint in `folder` on the first `heldout` held-out seeds."""
-    zero = Constant(np.zeros((HORIZON_STEPS, task.action_dim), np.float32))
+    zero = Constant(np.zeros((horizon_steps, task.action_dim), np.float32))
     with (Evaluator.open(str(folder), task, EngineOptions(workers=workers)) as evaluator,
           evaluator.progress(2 * heldout, "held-out: base and zero ticket")):
         rows = judge(evaluator, {ZERO: zero}, seeds_in("heldout", heldout)).rows
@@ -195,8 +221,8 @@ def measure(folder: Path, task, heldout: int, workers: int) -> dict:
 
 def run(args: argparse.Namespace) -> None:
     task = get_task(f"robomimic/{args.task}")
-    demos, style = RECIPES[args.task]
-    asked = settings(args.demos or demos, style, args.steps, args.seed)
+    recipe = RECIPES[args.task]
+    asked = settings(args.demos or recipe.demos, recipe.style, args.steps, args.seed)
     out = args.out or Path("runs") / f"dppo-{args.task}"
     seeds_in("heldout", args.heldout)  # a UserError now, not after training
     if (out / "training.json").is_file():
@@ -208,12 +234,12 @@ def run(args: argparse.Namespace) -> None:
     elif out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UserError(f"--out {out} exists and holds no finished training; choose a new folder")
     else:
-        record = build(task, out, asked)
+        record = build(task, recipe, out, asked)
     start = time.perf_counter()
-    measured = measure(out, task, args.heldout, args.workers)
+    measured = measure(out, task, recipe.horizon_steps, args.heldout, args.workers)
     record |= {"policy": str(out), "ddim_steps": DENOISING_STEPS, "heldout": args.heldout} | measured
     record["wall_s"] |= {"measure": round(time.perf_counter() - start, 1), "measure_workers": args.workers}
-    official = asked == settings(demos, style, STEPS, SEED) and args.heldout == HELDOUT
+    official = asked == settings(recipe.demos, recipe.style, STEPS, SEED) and args.heldout == HELDOUT
     path = RESULTS / f"dppo_{args.task}.json" if official else out / "measured.json"
     write_atomic(path, json.dumps(record, indent=2) + "\n")
     for arm in ("base", "zero"):

@@ -141,13 +141,13 @@ def test_a_dppo_checkpoint_trained_on_lift_demonstrations_is_searched_alike_by_1
 
     demos = collect_demos(get_task("robomimic/lift"), 2, DemoStyle(), seed=0)
     norm = bench.normalization(demos)
-    pairs = bench.dataset(demos, norm)
-    network, ema, losses, epochs = bench.train(*pairs, steps=3, seed=0)
-    again = bench.train(*pairs, steps=3, seed=0)[0].state_dict()
+    recipe = bench.RECIPES["lift"]
+    pairs = bench.dataset(demos, norm, recipe.horizon_steps)
+    network, ema, losses, epochs = bench.train(recipe, *pairs, steps=3, seed=0)
+    again = bench.train(recipe, *pairs, steps=3, seed=0)[0].state_dict()
     assert len(losses) == 1 and all(torch.equal(v, again[k]) for k, v in network.state_dict().items())
     folder = tmp_path / "dppo"
-    save_checkpoint(folder, network, norm, denoising_steps=bench.DENOISING_STEPS, act_steps=bench.ACT_STEPS,
-                    epoch=epochs, ema=ema)
+    save_checkpoint(folder, network, norm, denoising_steps=bench.DENOISING_STEPS, epoch=epochs, ema=ema)
     runs = []
     for workers in ("1", "2"):
         out = tmp_path / f"run-{workers}"
