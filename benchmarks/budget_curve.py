@@ -10,14 +10,15 @@
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
 searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
 ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`,
-`--subspace`, `--method`, `--race`, `--halving`, `--validation-seeds`, `--population`,
-`--full-population` and `--full-start` (the portfolio's full search's tickets a generation and start) change
-the search at those budgets (a point is a budget and a search). The point at the default budget and
-search is the existence table's own. Each pair's row is kept in
-benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget, then -seedsN, -valN,
--raceP, -popN, -fullpopN, -halving, -full, the method, its dashes written as underscores, and -start_S, where
-they differ from the defaults), so a run resumes pair by pair, on another machine too; its run folder under
-benchmarks/runs/budget-<point>/ resumes a pair's episodes.
+`--subspace`, `--method`, `--race`, `--halving`, `--validation-seeds`, `--seed` (another draw of
+the same search), `--population`, `--full-population` and `--full-start` (the portfolio's full
+search's tickets a generation and start) change the search at those budgets (a point is a budget
+and a search). The point at the default budget and search is the existence table's own. Each
+pair's row is kept in benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget,
+then -seedsN, -valN, -raceP, -seedN, -popN, -fullpopN, -halving, -full, the method, its dashes
+written as underscores, and -start_S, where they differ from the defaults), so a run resumes pair
+by pair, on another machine too; its run folder under benchmarks/runs/budget-<point>/ resumes a
+pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
 """
 
@@ -34,7 +35,7 @@ from goldenticket.ticket_search import METHODS
 from goldenticket.ticket_search.methods import FULL_STARTS
 
 ROWS = RESULTS / "budget_curve"
-SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds")} | {
+SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds", "seed")} | {
     "race": None, "population": None, "full_population": None, "full_start": None,
     "halving": False}  # what a point may change (None: the method's)
 DEFAULT = (SETTINGS["budget"], SEARCH | {"halving": SETTINGS["halving"]})  # the existence table's point
@@ -44,7 +45,7 @@ RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
 TARGETS = {"vs_base": 0.9, "failure_reduction": 0.55, "mean_gain": 0.18}
 TITLES = {"vs_base": "pairs significantly above the base", "failure_reduction": "mean failure reduction",
           "mean_gain": "mean gain in success rate"}
-TOKENS = {"search_seeds": "seeds", "validation_seeds": "val", "race": "race",
+TOKENS = {"search_seeds": "seeds", "validation_seeds": "val", "race": "race", "seed": "seed",
           "population": "pop", "full_population": "fullpop"}  # a folder's numeric parts
 
 
@@ -110,6 +111,7 @@ def search_label(search: dict) -> str:
             "" if search["race"] is None else f"raced at {search['race']}",
             "" if search["validation_seeds"] == SEARCH["validation_seeds"] else
             f"{search['validation_seeds']} validation seeds",
+            "" if search["seed"] == SEARCH["seed"] else f"seed {search['seed']}",
             "" if search["population"] is None else f"{search['population']} tickets a generation",
             "" if search["full_population"] is None else
             f"{search['full_population']} a generation of the full search",
@@ -241,6 +243,8 @@ def plot(points: list[dict], path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--budgets", nargs="+", type=int, default=[2000], help="search budgets to add")
+    parser.add_argument("--seed", type=int, default=SEARCH["seed"],
+                        help="of the search's own draws: another seed, another draw of the same search")
     parser.add_argument("--search-seeds", type=int, default=SEARCH["search_seeds"],
                         help="initial states each ticket is searched on")
     parser.add_argument("--subspace", choices=("full", "tiled"), default=SEARCH["subspace"],
