@@ -315,3 +315,19 @@ def test_env_options_set_liberos_cameras_and_control_mode_and_the_tickets_keep_t
                  "--heldout", "1", "--top-k", "1", "--workers", "1", "--out", str(out)]) == 0
     ticket = next((out / "tickets").glob("*.safetensors"))
     assert Ticket.load(ticket).metadata["env_option"] == options
+
+
+def test_the_shipped_libero_smolvla_runs_its_tasks_on_the_frames_it_was_trained_on(capsys):
+    """examples/smolvla_libero_policy as its model card runs it: both cameras at 64 x 64 (env options
+    that the task's tickets record), the 8-number state, each task's instruction."""
+    from examples.smolvla_libero_train import RECIPE
+
+    policy = load_policy(str(RECIPE.policy_dir))
+    shapes = {key: tuple(feature.shape) for key, feature in policy.model.config.input_features.items()}
+    assert shapes == {"observation.images.image": (3, 64, 64), "observation.images.image2": (3, 64, 64),
+                      "observation.state": (8,)}
+    options = [arg for item in RECIPE.task_options.items() for arg in ("--env-option", "{}={}".format(*item))]
+    assert main(["evaluate", "--policy", str(RECIPE.policy_dir), "--task", RECIPE.tasks[-1], *options,
+                 "--seeds", "1005000:1005001", "--max-steps", str(STEPS), "--workers", "1", "--json"]) == 0
+    verdict = json.loads(capsys.readouterr().out)
+    assert verdict["base"]["n"] == verdict["zero"]["n"] == 1
