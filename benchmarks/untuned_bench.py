@@ -58,9 +58,7 @@ SEARCH_BUDGETS = {250: 100, 500: 350, TOTAL: 1100, 2500: 2350}  # that, halved -
 SEARCHES = {"default": {},  # the `search` defaults: CMA-ES over a tiled ticket
             "portfolio": {"method": "portfolio", "subspace": "full"},  # a tiled and a full CMA-ES
             "portfolio-from-tiled": {"method": "portfolio", "subspace": "full",  # its full search starting
-                                     "optimizer": {"full_start": "tiled"}},  # at the tiled one's best
-            "portfolio-probe10": {"method": "portfolio", "subspace": "full",  # its full search asking
-                                  "optimizer": {"full_population": 10}}}  # 10 tickets a generation
+                                     "optimizer": {"full_start": "tiled"}}}  # at the tiled one's best
 
 
 def on_path(folder: Path) -> None:
