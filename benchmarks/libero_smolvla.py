@@ -20,7 +20,7 @@ from pathlib import Path
 
 from results_files import RESULTS, write_results
 
-from goldenticket.config import EvaluateConfig
+from goldenticket.config import EvaluateConfig, seed_range
 from goldenticket.evaluation import BASE, ZERO
 from goldenticket.job.evaluate import evaluate_tickets
 from goldenticket.report import rate_text
@@ -58,16 +58,17 @@ def markdown(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", default="1005000:1005020", help="held-out seeds A:B (default %(default)s)")
+    parser.add_argument("--seeds", type=seed_range, default=range(1_005_000, 1_005_020),
+                        help="held-out seeds A:B (default 1005000:1005020)")
     parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
-    first, last = map(int, args.seeds.split(":"))
+    first, last = args.seeds.start, args.seeds.stop
     path, rows = RESULTS / "libero_smolvla.json", []
     kept = {r["task"]: r for r in json.loads(path.read_text())["tasks"]} if path.is_file() else {}
     for task in RECIPE.tasks:
         row = kept.get(task)
         if row is None or row["seeds"] != [first, last]:
-            row = measure(task, range(first, last), args.workers)
+            row = measure(task, args.seeds, args.workers)
         rows.append(row)
         policy = str(RECIPE.policy_dir.relative_to(HERE.parent))
         record = {"policy": policy, "env_option": RECIPE.task_options, "tasks": rows}
