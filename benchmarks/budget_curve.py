@@ -8,15 +8,17 @@
     python benchmarks/budget_curve.py --plot-only              # redraw budget_curve.png
 
 At each search budget, every pair whose base succeeds at most 85% in the existence table is
-searched and judged as `existence.py` does it (the `search` defaults but the budget), and its best
+searched and judged as `existence.py` does it, by CMA-ES over a tiled ticket, every ticket on every
+search seed (the default search before the portfolio; the `search` defaults otherwise), and its best
 ticket judged again, with base and zero ticket, on the same two fresh ranges. `--search-seeds`,
 `--subspace`, `--method`, `--race`, `--halving`, `--validation-seeds`, `--seed` (another draw of
 the same search), `--population`, `--full-population` and `--full-start` (the portfolio's full
 search's tickets a generation and start) change the search at those budgets (a point is a budget
-and a search). The point at the default budget and search is the existence table's own. Each
+and a search). The point at the default budget and search (`--budgets 1100 --method portfolio
+--subspace full --halving`) is the existence table's own. Each
 pair's row is kept in benchmarks/results/budget_curve/<point>/ once judged (<point>: the budget,
 then -seedsN, -valN, -raceP, -seedN, -popN, -fullpopN, -halving, -full, the method, its dashes
-written as underscores, and -start_S, where they differ from the defaults), so a run resumes pair
+written as underscores, and -start_S, where they differ from CMA-ES tiled's), so a run resumes pair
 by pair, on another machine too; its run folder under benchmarks/runs/budget-<point>/ resumes a
 pair's episodes.
 Results, for the budgets that have every pair: benchmarks/results/budget_curve.{md,json,png}.
@@ -35,10 +37,12 @@ from goldenticket.ticket_search import METHODS
 from goldenticket.ticket_search.methods import FULL_STARTS
 
 ROWS = RESULTS / "budget_curve"
-SEARCH = {k: SETTINGS[k] for k in ("search_seeds", "subspace", "method", "validation_seeds", "seed")} | {
-    "race": None, "population": None, "full_population": None, "full_start": None,
-    "halving": False}  # what a point may change (None: the method's)
-DEFAULT = (SETTINGS["budget"], SEARCH | {"halving": SETTINGS["halving"]})  # the existence table's point
+SEARCH = {"search_seeds": SETTINGS["search_seeds"], "subspace": "tiled", "method": "cma-es",
+          "validation_seeds": SETTINGS["validation_seeds"], "seed": SETTINGS["seed"], "race": None,
+          "population": None, "full_population": None, "full_start": None,
+          "halving": False}  # what a point may change (None: the method's), from CMA-ES over a tiled ticket
+# the existence table's point: the `search` defaults
+DEFAULT = (SETTINGS["budget"], SEARCH | {k: SETTINGS[k] for k in ("method", "subspace", "halving")})
 METHOD_SETTINGS = ("population", "full_population", "full_start")  # a point's changes: its method's settings
 FROM = {"zero": "w = 0", "tiled": "the tiled search's best"}  # the portfolio's full_start, said
 RANGES = {"fresh": "fresh seeds", "fresh_2": "second fresh range"}
@@ -167,15 +171,18 @@ def searches(points: list[dict]) -> list[dict]:
 
 
 def command(search: dict, points: list[dict]) -> str:
+    """The command that makes `search`'s points but the existence table's ("" where none is left)."""
     budgets = [p["budget"] for p in points if search_of(p) == search
                and (p["budget"], search) != DEFAULT]
+    if not budgets:
+        return ""
     flags = "".join(f" --{k.replace('_', '-')}" + ("" if search[k] is True else f" {search[k]}")
                     for k in SEARCH if search[k] != SEARCH[k])
     return f"`python benchmarks/budget_curve.py --budgets {' '.join(map(str, budgets))}{flags}`"
 
 
 def markdown(points: list[dict]) -> str:
-    lines = ["Regenerate: " + ", ".join(command(s, points) for s in searches(points)) +
+    lines = ["Regenerate: " + ", ".join(filter(None, (command(s, points) for s in searches(points)))) +
              f" (the {DEFAULT[0]}-episode point with {search_label(DEFAULT[1])} is the existence "
              "table).", "",
              "| search budget | search | search + validation episodes, mean (max) | seeds | significant "
@@ -201,11 +208,11 @@ def markdown(points: list[dict]) -> str:
             lines.append(f"| {p['budget']} | {search_label(p)} | {d['kept_base']} | {said} | "
                          f"{d['vs_base']:.0%} | {d['failure_reduction']:.1%} | {100 * d['mean_gain']:+.1f} |")
     lines += ["", f"Over the {points[0]['targets']['pairs']} pairs whose base succeeds at most "
-              f"{WEAK_BASE:.0%}; settings otherwise the `search` defaults ({SETTINGS['method']}, "
+              f"{WEAK_BASE:.0%}; settings otherwise the `search` defaults ("
               f"{SETTINGS['validation_seeds']} validation seeds, top {SETTINGS['top_k']} judged on "
               f"{SETTINGS['heldout']} held-out seeds, the zero ticket beside them); search: the search "
               "seeds, the sub-space searched (full: every entry of the ticket; tiled: one action-sized "
-              "vector repeated over the horizon), the method where it is not the default, the racing level "
+              "vector repeated over the horizon), the method where it is not CMA-ES, the racing level "
               "where tickets are raced (search `--race`), halved where search and validation are raced by "
               "sequential halving (search `--halving`), the validation seeds where they are not "
               f"{SEARCH['validation_seeds']} and CMA-ES's tickets a generation where they are not 20; "

@@ -20,7 +20,7 @@ workers (default 1: one core each, so two pairs can run side by side as two proc
 - CEM and CMA-ES (goldenticket, paper defaults), at the family's budgets, each search timed from
   scratch; its top ticket judged on the same held-out seeds. On Meta-World every ticket runs on
   every search seed; on robomimic the searches halve as the defaults do, so CMA-ES at 1100 episodes
-  is the default search.
+  is the default search before the portfolio.
 
 Resumable: each pair's folder `--runs`/<task> keeps, per DSRL variant (a sub-folder), its model
 and replay buffer, the env's counters and the curve so far (rewritten after every checkpoint),
@@ -96,7 +96,7 @@ class Family:
 
 
 # a robomimic episode is up to 400 steps, seconds on one core: its judgements are 100 episodes, its
-# searches two budgets, following the defaults' halving, so CMA-ES at 1100 episodes is the default search
+# searches two budgets, following the defaults' halving (CMA-ES at 1100: the default before the portfolio)
 FAMILIES = {"metaworld": Family(400, 200, (100, 300, 1000, 3000), False, "dsrl", "python"),
             "robomimic": Family(1000, 100, (100, 1100), None, "dsrl_robomimic", "robomimic-venv/bin/python")}
 

@@ -5,6 +5,7 @@
     python benchmarks/existence.py --plot-only  # redraw existence.png from existence.json
     robomimic-venv/bin/python benchmarks/existence.py --robomimic [lift can] [--ship]  # robomimic's pairs
     ... --robomimic can --policies ddim@2      # one policy's pairs (the others' rows are kept)
+    ... --method cma-es --subspace tiled       # another search (default: the `search` defaults)
 
 
 One pair is a bundled policy on its task: flow (10 Euler steps), DDIM with 8 steps and DDIM
@@ -16,7 +17,8 @@ held-out seeds that no choice saw. Every pair's best ticket, golden or not, is k
 benchmarks/results/existence_tickets/ with its verdicts. Results: benchmarks/results/existence.{md,json,png};
 with `--robomimic`, the bundled robomimic policies' pairs beside the paper's robomimic rows:
 benchmarks/results/robomimic_existence.{md,json,png}, rewritten as each pair ends, keeping the rows of
-the pairs not run (a Lift pair took 36-63 min on 2 cores, a Can pair 55-98 min).
+the pairs not run (a Lift pair took 36-63 min on 2 cores, a Can pair 55-98 min, with CMA-ES over
+a tiled ticket).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from goldenticket.results import to_run
 from goldenticket.stats import paired_exact_test, sign_test, wilson_interval
 from goldenticket.store import RunStore
 from goldenticket.tasks import seeds_in
+from goldenticket.ticket_search import METHODS
 from goldenticket.tickets import ZERO_SOURCE, Ticket
 
 HERE = Path(__file__).parent
@@ -227,9 +230,9 @@ def failure_reduction(best: dict, base: dict) -> float:
     return (best["success_rate"] - base["success_rate"]) / (1 - base["success_rate"])
 
 
-def markdown(rows: list[dict], summary: dict, wall: float | None) -> str:
-    """The table and its findings; `wall`: the run's wall time, None for a table whose rows come from
-    several runs (each row then gives its own)."""
+def markdown(rows: list[dict], summary: dict, wall: float | None, workers: int = 2) -> str:
+    """The table and its findings; `wall`: the run's wall time on `workers` workers, None for a table
+    whose rows come from several runs (each row then gives its own)."""
     lines = ["| task | policy | base | zero ticket | best ticket | p vs base | p vs zero | fresh seeds "
              "| search |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -275,7 +278,7 @@ def markdown(rows: list[dict], summary: dict, wall: float | None) -> str:
                  f"ticket; fresh: the next {FRESH} held-out seeds, and the second fresh range the {FRESH} "
                  "after those, for the best ticket, the base and the zero ticket (shown: ticket vs base, "
                  "on the first fresh range)." + ("" if wall is None else f" Wall time of this run: "
-                 f"{wall / 60:.0f} min (2 workers; resumed runs count only new work)."))
+                 f"{wall / 60:.0f} min ({workers} worker(s); resumed runs count only new work)."))
     return "\n".join(lines) + "\n"
 
 
@@ -389,6 +392,10 @@ def main() -> None:
                         help="of each task's pairs, these policies' only (a partial Meta-World table is only "
                              "printed; robomimic's keeps the other pairs' committed rows)")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--method", choices=list(METHODS), default=SETTINGS["method"],
+                        help="search method (default: the `search` default)")
+    parser.add_argument("--subspace", choices=("full", "tiled"), default=None,
+                        help="what the search varies (default: the method's)")
     parser.add_argument("--ship", action="store_true", help="copy golden tickets into the package")
     parser.add_argument("--robomimic", nargs="*", default=None, metavar="TASK",
                         choices=[t.removeprefix("robomimic/") for t in ROBOMIMIC],
@@ -401,32 +408,35 @@ def main() -> None:
         save_figure(json.loads((RESULTS / "existence.json").read_text())["pairs"], RESULTS / "existence.png")
         return
     start, summaries = time.perf_counter(), []
+    chosen = SearchConfig("", "", args.method, subspace=args.subspace)
+    search = {"method": chosen.method, "subspace": chosen.subspace}
+    settings = SETTINGS | search | {"fresh": FRESH}
     robomimic = args.robomimic is not None
     todo = robomimic_pairs([f"robomimic/{t}" for t in args.robomimic or ROBOMIMIC]) if robomimic else \
         pairs(args.only)
     todo = [(task, policy) for task, policy in todo if policy.rsplit("/", 1)[1] in args.policies]
     for i, (task, policy) in enumerate(todo, 1):
         print(f"[{i}/{len(todo)}] {policy}", flush=True)
-        summaries.append(run_pair(task, policy, args.runs, args.workers))
+        summaries.append(run_pair(task, policy, args.runs, args.workers, **search))
         if robomimic:  # a robomimic pair takes an hour or more: the table gains each as it ends
-            write_robomimic(summaries[-1:], [table_row(summaries[-1])], args.ship)
+            write_robomimic(summaries[-1:], [table_row(summaries[-1])], args.ship, settings)
     if robomimic:
         return
     rows = [table_row(s) for s in summaries]
     summary = summary_rows(rows)
     wall = time.perf_counter() - start
     if args.only != list(MT10) or args.policies != list(POLICIES):  # a partial table is only printed
-        print(markdown(rows, summary, wall))
+        print(markdown(rows, summary, wall, args.workers))
         return
-    record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
-              "wall_time_s": round(wall)}
+    record = {"settings": settings, "summary": summary, "pairs": rows, "wall_time_s": round(wall)}
     keep_best_tickets(summaries, RESULTS / "existence_tickets")
-    write_results("existence", record, markdown(rows, summary, wall), lambda path: save_figure(rows, path))
+    write_results("existence", record, markdown(rows, summary, wall, args.workers),
+                  lambda path: save_figure(rows, path))
     if args.ship:
         print(f"Shipped {ship(summaries)} golden tickets into {BUNDLED_DIR}.")
 
 
-def write_robomimic(summaries: list[dict], rows: list[dict], ship_them: bool) -> None:
+def write_robomimic(summaries: list[dict], rows: list[dict], ship_them: bool, settings: dict) -> None:
     """The robomimic table with these pairs and the committed rows of the others, the paper's rows
     beside it, and each pair's best ticket; `ship_them`: the golden ones into the package too."""
     path, ran = RESULTS / "robomimic_existence.json", {(r["task"], r["policy"]) for r in rows}
@@ -435,8 +445,8 @@ def write_robomimic(summaries: list[dict], rows: list[dict], ship_them: bool) ->
     rows = sorted([r for r in committed if (r["task"], r["policy"]) not in ran] + rows,
                   key=lambda r: order.index((r["task"], r["policy"])))
     summary, wall = summary_rows(rows), sum(r["wall_time_s"] for r in rows)
-    record = {"settings": SETTINGS | {"fresh": FRESH}, "summary": summary, "pairs": rows,
-              "paper": PAPER_ROBOMIMIC, "wall_time_s": wall}
+    record = {"settings": settings, "summary": summary, "pairs": rows, "paper": PAPER_ROBOMIMIC,
+              "wall_time_s": wall}
     table = markdown(rows, summary, None) + "\n".join(paper_lines(rows) + wall_lines(rows)) + "\n"
     keep_best_tickets(summaries, RESULTS / "robomimic_existence_tickets")
     write_results("robomimic_existence", record, table, lambda path: save_figure(rows, path))

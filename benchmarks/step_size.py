@@ -74,8 +74,8 @@ def search(evaluator: Evaluator, name: str, policy, start: str) -> SearchResult:
 
 def searching(name: str, **settings) -> SearchConfig:
     """The search over the full ticket, CMA-ES with `settings`, every ticket on every search seed."""
-    return replace(DEFAULTS, policy=name, task=name.rsplit("/", 1)[0], budget=BUDGET, subspace="full",
-                   optimizer=settings, validation_seeds=VALIDATION, halving=False)
+    return replace(DEFAULTS, policy=name, task=name.rsplit("/", 1)[0], budget=BUDGET, method="cma-es",
+                   subspace="full", optimizer=settings, validation_seeds=VALIDATION, halving=False)
 
 
 def delivered(evaluator: Evaluator, name: str, policy, start: str) -> tuple[Ticket, bool]:

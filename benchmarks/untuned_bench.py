@@ -1,23 +1,25 @@
 """The untuned bench: the search's defaults on policies nobody tuned them for.
 
     python benchmarks/untuned_bench.py                        # every pair, the default search
-    python benchmarks/untuned_bench.py --pairs franka-1003 --search portfolio
+    python benchmarks/untuned_bench.py --pairs franka-1003 --search tiled  # CMA-ES over a tiled ticket
     python benchmarks/untuned_bench.py --pairs fetch-push --budgets 250 500 2500  # the budget curve
     lerobot-venv/bin/python benchmarks/untuned_bench.py --pairs smolvla-drawer-open lerobot-reach
+    robomimic-venv/bin/python benchmarks/untuned_bench.py --pairs dppo-lift dppo-can
 
 Each pair is searched and judged as the existence table does it (`existence.run_pair`: the `search`
 defaults, the best ticket judged again with the base and the zero ticket on two ranges of 200 fresh
-held-out seeds that no search or choice saw), under each search named by --search, within each
-number of search and validation episodes named by --budgets (the default's 1250, or 250, 500 or
-2500: the search budget 150 below it, search and validation halved). The paper
-authors' franka_sim checkpoints 1002 and 1003 come from ../shared/franka_sim (their env and
-checkpoints as module:factory, MIT licence; needs `pip install dm-robotics-transformations`); their
-shipped ticket is judged on the same fresh seeds beside ours. Each pair's row is kept in
+held-out seeds that no search or choice saw), under each search named by --search (portfolio: the
+defaults; tiled: CMA-ES over a tiled ticket, the default before the portfolio), within each number
+of search and validation episodes named by --budgets (the default's 1250, or 250, 500 or 2500: the
+search budget 150 below it, search and validation halved). The paper authors' franka_sim checkpoints
+1002 and 1003 come from ../shared/franka_sim (their env and checkpoints as module:factory, MIT
+licence; needs `pip install dm-robotics-transformations`); their shipped ticket is judged on the
+same fresh seeds beside ours. Each pair's row is kept in
 benchmarks/results/untuned_bench/<arm>/<pair>.json once judged (<arm>: the search, then @<budget>
 where the budget is not 1250), so a run resumes pair by pair; its run folder under
-benchmarks/runs/untuned/<arm>/ resumes its episodes. The LeRobot examples'
-pairs (the SmolVLA, the UNet diffusion policy on reach) run in LeRobot's venv, their shipped tickets
-judged beside ours. Results:
+benchmarks/runs/untuned/<arm>/ resumes its episodes. The LeRobot examples' pairs (the SmolVLA, the
+UNet diffusion policy on reach) run in LeRobot's venv, their shipped tickets judged beside ours; the
+DPPO-format checkpoints trained here (dppo_robomimic.py builds them into runs/) in robosuite's. Results:
 benchmarks/results/untuned_bench.{md,json}.
 """
 
@@ -32,6 +34,7 @@ from pathlib import Path
 from existence import FRESH_RANGES, HERE, fresh_check, run_folder, run_pair, table_row
 from results_files import RESULTS, write_results
 
+from goldenticket import kernels
 from goldenticket.files import write_atomic
 from goldenticket.report import rate_text
 from goldenticket.store import RunStore
@@ -46,7 +49,11 @@ PAIRS = {  # name -> (task, policy)
     "fetch-push": ("examples.fetch_push:make_env", "examples.fetch_push:make_policy"),
     "smolvla-drawer-open": ("metaworld-pixels/drawer-open-v3", "examples/smolvla_metaworld_policy"),
     "lerobot-reach": ("examples.lerobot_reach:make_env", "examples/lerobot_reach_policy"),
+    "dppo-lift": ("robomimic/lift", "runs/dppo-lift"),
+    "dppo-can": ("robomimic/can", "runs/dppo-can"),
 }
+BUILT_BY = {name: f"robomimic-venv/bin/python benchmarks/dppo_robomimic.py --task {name[5:]}"  # policies
+            for name in ("dppo-lift", "dppo-can")}  # trained here first (deterministic on one thread)
 SHIPPED = {"smolvla-drawer-open": "examples/smolvla_metaworld_ticket.safetensors",  # the examples' tickets
            "lerobot-reach": "examples/lerobot_reach_ticket.safetensors"}
 REFERENCES = {"authors-ticket": "the authors' shipped ticket",  # kind -> label of a ticket shipped before
@@ -55,8 +62,8 @@ SLOW = {"heldout": 50, "fresh_ranges": 1}  # franka_sim: 4-5 s an episode on one
 JUDGING = {name: SLOW if name.startswith("franka-") else {} for name in PAIRS}  # the verdict and fresh check
 TOTAL = 1250  # the defaults' search and validation episodes at most
 SEARCH_BUDGETS = {250: 100, 500: 350, TOTAL: 1100, 2500: 2350}  # that, halved -> the search's budget
-SEARCHES = {"default": {},  # the `search` defaults: CMA-ES over a tiled ticket
-            "portfolio": {"method": "portfolio", "subspace": "full"},  # a tiled and a full CMA-ES
+SEARCHES = {"portfolio": {"method": "portfolio", "subspace": "full"},  # the `search` defaults
+            "tiled": {"method": "cma-es", "subspace": "tiled"},  # CMA-ES, tiled: the default before
             "portfolio-from-tiled": {"method": "portfolio", "subspace": "full",  # its full search starting
                                      "optimizer": {"full_start": "tiled"}}}  # at the tiled one's best
 
@@ -85,6 +92,8 @@ def pair_row(name: str, search: str, total: int, workers: int) -> None:
     path = ROWS / arm / f"{name}.json"
     if not path.exists():
         task, policy = PAIRS[name]
+        if name in BUILT_BY and not Path(policy).is_dir():
+            sys.exit(f"{name}: no {policy}/ here; build it first: {BUILT_BY[name]}")
         print(f"[{arm}] {name}", flush=True)
         runs = HERE / "runs" / "untuned" / arm
         budget = {} if total == TOTAL else {"budget": SEARCH_BUDGETS[total], "halving": True}
@@ -212,11 +221,12 @@ def range_line(name: str, label: str, f: dict, cost: str, base: bool = False) ->
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", nargs="+", choices=list(PAIRS), default=list(PAIRS))
-    parser.add_argument("--search", nargs="+", choices=list(SEARCHES), default=["default"])
+    parser.add_argument("--search", nargs="+", choices=list(SEARCHES), default=["portfolio"])
     parser.add_argument("--budgets", nargs="+", type=int, choices=list(SEARCH_BUDGETS), default=[TOTAL],
                         help="search and validation episodes at most")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
+    kernels.restart_pinned([PAIRS[name][0] for name in args.pairs])  # robomimic's, as the CLI pins
     on_path(FRANKA)
     on_path(HERE.parent)  # the examples' policies and envs, named as the CLI names them
     for name in args.pairs:

@@ -28,12 +28,14 @@ sys.path.insert(0, str(HERE.parent))  # the repository root: tickets name the ta
 from examples import fetch_push  # noqa: E402
 
 FRESH = range(1_005_000, 1_005_300)
-CURVE = {"cma-es, tiled, 850": {"budget": 850, "halving": False},  # searches the budget curve compares
-         "cma-es, tiled, 300, 20 validation seeds": {"budget": 300, "validation_seeds": 20, "halving": False},
+TILED = {"method": "cma-es", "subspace": "tiled"}  # CMA-ES over a tiled ticket
+CURVE = {"cma-es, tiled, 850": TILED | {"budget": 850, "halving": False},  # the budget curve's searches
+         "cma-es, tiled, 300, 20 validation seeds": TILED | {"budget": 300, "validation_seeds": 20,
+                                                             "halving": False},
          "tiled-then-full, full, 1600": {"budget": 1600, "method": "tiled-then-full", "subspace": "full",
                                          "halving": False},
-         "cma-es, tiled, 1100, halved": {"budget": 1100, "halving": True},
-         "cma-es, tiled, 350, halved": {"budget": 350, "halving": True}}
+         "cma-es, tiled, 1100, halved": TILED | {"budget": 1100, "halving": True},
+         "cma-es, tiled, 350, halved": TILED | {"budget": 350, "halving": True}}
 TARGETS = {"fetch-push": ("fetch_push_curve", lambda: (fetch_push.make_policy(), fetch_push.make_env)),
            "pixels": ("pixels_curve", lambda: ("metaworld-pixels/drawer-open-v3/flow",
                                                "metaworld-pixels/drawer-open-v3"))}

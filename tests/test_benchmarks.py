@@ -112,7 +112,7 @@ def test_budget_curve_keeps_a_changed_search_apart_from_the_default(tmp_path, mo
         (tmp_path / name / f"{pair}.json").write_text(row)
     points = budget_curve.curve()
     assert [(p["budget"], p["search_seeds"], p["subspace"], p["halving"]) for p in points] == [
-        (1100, 20, "tiled", True), (850, 40, "full", False)]
+        (1100, 20, "full", True), (850, 40, "full", False)]
     table = budget_curve.markdown(points)
     assert "`python benchmarks/budget_curve.py --budgets 850 --search-seeds 40 --subspace full`" in table
     assert "| 850 | 40 seeds, full | 1250 (1250) | fresh seeds | 100% |" in table
@@ -383,9 +383,9 @@ def test_a_robomimic_run_replaces_its_pairs_rows_and_keeps_the_others(tmp_path, 
     def row(task, best):
         return _row(0.5, 0.5, best, 0.01, 0.5) | {"task": task, "wall_time_s": 600}
 
-    existence.write_robomimic([], [row("robomimic/can", 0.6)], ship_them=False)
-    existence.write_robomimic([], [row("robomimic/lift", 0.7)], ship_them=False)
-    existence.write_robomimic([], [row("robomimic/lift", 0.8)], ship_them=False)
+    existence.write_robomimic([], [row("robomimic/can", 0.6)], ship_them=False, settings=existence.SETTINGS)
+    existence.write_robomimic([], [row("robomimic/lift", 0.7)], ship_them=False, settings=existence.SETTINGS)
+    existence.write_robomimic([], [row("robomimic/lift", 0.8)], ship_them=False, settings=existence.SETTINGS)
     record = json.loads((tmp_path / "robomimic_existence.json").read_text())
     assert [(r["task"], r["best"]["success_rate"]) for r in record["pairs"]] == [
         ("robomimic/lift", 0.8), ("robomimic/can", 0.6)]
@@ -445,10 +445,10 @@ def test_untuned_bench_says_what_the_job_delivers_and_sets_the_authors_ticket_be
     zero["fresh"], zero["fresh_2"] = zero["fresh"] | seeds, zero["fresh_2"] | seeds
     theirs = {"ticket": "ghi", "fresh": ours["fresh"] | {"success_rate": 0.95}}
     authors = {"authors-ticket": {"franka-1003": theirs}}
-    rows = {("franka-1003", "portfolio"): ours, ("franka-1003", "default"): zero}
+    rows = {("franka-1003", "portfolio"): ours, ("franka-1003", "tiled"): zero}
     table = untuned_bench.markdown(rows, authors)
     lines = table.splitlines()[2:]
-    base = "default: the base (its best, the zero ticket, was not above it)"
+    base = "tiled: the base (its best, the zero ticket, was not above it)"
     assert [line.split(" | ")[1] for line in lines] == ["portfolio: ticket abc", base, base,
                                                         "the authors' shipped ticket, ghi"]
     assert lines[1].split(" | ")[3] == lines[1].split(" | ")[5] == "50.0% [45%, 55%]"  # the base, delivered
@@ -459,18 +459,18 @@ def test_untuned_bench_says_what_the_job_delivers_and_sets_the_authors_ticket_be
 
 
 def test_untuned_bench_draws_each_searchs_budget_curve():
-    assert untuned_bench.arm_name("default", 1250) == "default"
+    assert untuned_bench.arm_name("tiled", 1250) == "tiled"
     assert untuned_bench.arm_of(untuned_bench.arm_name("portfolio", 250)) == ("portfolio", 250)
     seeds = {"seeds": [1000200, 1000399]}
     small = _row(0.5, 0.45, 0.7, 1e-3, 1e-3) | {"ticket": "abc", "episode_seconds": 60, "deliver": "ticket"}
     large = _row(0.5, 0.45, 0.9, 1e-6, 1e-7) | {"ticket": "def", "episode_seconds": 600, "deliver": "base"}
     for row in (small, large):
         row["fresh"], row["fresh_2"] = row["fresh"] | seeds, row["fresh_2"] | seeds
-    rows = {("fetch-push", "default@250"): small, ("fetch-push", "default"): large,
-            ("franka-1003", "default"): large}
+    rows = {("fetch-push", "tiled@250"): small, ("fetch-push", "tiled"): large,
+            ("franka-1003", "tiled"): large}
     table = untuned_bench.markdown(rows, {})
-    assert "| fetch-push | default within 250: ticket abc |" in table
+    assert "| fetch-push | tiled within 250: ticket abc |" in table
     curve = table.split("The budget curve")[1].splitlines()
     assert curve[2] == "| pair | search | 250 | 1250 |"
-    assert curve[4] == "| fetch-push | default | 70.0% / 70.0% | 50.0% / 50.0% (the base) |"
+    assert curve[4] == "| fetch-push | tiled | 70.0% / 70.0% | 50.0% / 50.0% (the base) |"
     assert len(curve) == 5  # franka-1003 has one budget: no curve

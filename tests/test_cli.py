@@ -93,7 +93,7 @@ def test_help_says_defaults_and_version(capsys):
     with pytest.raises(SystemExit):
         main(["search", "--help"])
     help_text = capsys.readouterr().out
-    assert "(default: cma-es)" in help_text and "(default: 200)" in help_text
+    assert "(default: portfolio)" in help_text and "(default: 200)" in help_text
     with pytest.raises(SystemExit):
         main(["--version"])
     assert capsys.readouterr().out.startswith("goldenticket 0.")

@@ -57,7 +57,7 @@ def test_settings_round_trip_through_config_toml(tmp_path):
     path.write_text(to_toml(cfg))
     assert "optimizer = {population = 4, sigma_init = 0.5}" in path.read_text()
     assert make(SearchConfig, read_toml(path)).settings() == dataclasses.replace(
-        METHODS["cma-es"](), population=4, sigma_init=0.5)
+        METHODS["portfolio"](), population=4, sigma_init=0.5)  # the default method's
     assert "optimizer" not in to_toml(make(SearchConfig, {"policy": "p", "task": "t"}))  # defaults: unsaid
 
 
@@ -70,6 +70,6 @@ def test_flags_set_the_methods_settings_for_the_search(tmp_path, monkeypatch):
     with sqlite3.connect(out / "run.sqlite") as db:
         tickets = db.execute("SELECT COUNT(DISTINCT ticket_id) FROM episodes WHERE seed_set = 'search'"
                              ).fetchone()
-    assert tickets == (8,)  # two generations of 4 on 2 seeds: 16 episodes
+    assert tickets == (8,)  # two generations of 4 (the portfolio's tiled, then full) on 2 seeds: 16 episodes
     assert "optimizer = {population = 4, sigma_init = 0.5}" in (out / "config.toml").read_text()
     assert main(["search", *SMALL, "--budget", "16", "--out", str(out)]) == 2  # other settings: another run

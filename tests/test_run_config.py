@@ -14,8 +14,8 @@ from goldenticket.job.folder import open_store
 from goldenticket.job.plan import Names
 
 NAMES = Names("metaworld/pick-place-v3/flow", "metaworld/pick-place-v3", "018bd7c659905392@10")
-GIVEN = {"policy": NAMES.policy, "task": NAMES.task}
-STORED = (  # what `goldenticket demo` has always stored: a rerun of such a folder resumes
+GIVEN = {"policy": NAMES.policy, "task": NAMES.task, "method": "cma-es"}  # the default before the portfolio
+STORED = (  # what `goldenticket demo` stored before the portfolio: a rerun of such a folder resumes
     '{"address": null, "backend": null, "budget": 1100, "device": "cpu", "front_objective": null, '
     '"halving": true, "heldout": 200, "max_steps": null, "max_tickets": null, "method": "cma-es", '
     '"no_regression": false, "objective": "success", "policy": "metaworld/pick-place-v3/flow", '

@@ -195,8 +195,8 @@ def test_portfolio_gives_the_full_search_the_budget_only_where_its_best_ticket_c
     pair = ("metaworld/reach-v3/flow", "metaworld/reach-v3")
     with pytest.raises(OptionError, match="subspace full"):
         SearchConfig(*pair, method="portfolio", subspace="tiled").check()
-    assert SearchConfig(*pair, method="portfolio").subspace == "full"
-    assert SearchConfig(*pair).subspace == "tiled"
+    assert SearchConfig(*pair).method == "portfolio" and SearchConfig(*pair).subspace == "full"
+    assert SearchConfig(*pair, method="cma-es").subspace == "tiled"
 
 
 def returns_by_ticket(queries: list[Query]) -> list[np.ndarray]:

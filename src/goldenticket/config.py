@@ -128,7 +128,7 @@ class SearchConfig(EngineOptions):
         help=TASK_HELP + "; repeat for one ticket over several tasks of a multi-task policy (task-averaged "
         "success, judged per task) (default in search: the task a bundled single-task policy was trained on)",
         action="append")
-    method: str = option("cma-es", "random search, CEM, zeroth-order search, CEM raced by halving "
+    method: str = option("portfolio", "random search, CEM, zeroth-order search, CEM raced by halving "
                          "(cem-racing) or by confidence bounds (cem-bounds), CMA-ES, CMA-ES over a tiled "
                          "then the full ticket (tiled-then-full), or a tiled and a full CMA-ES sharing "
                          "the budget by which finds the better tickets (portfolio)",
