@@ -5,7 +5,7 @@
     python benchmarks/existence.py --plot-only  # redraw existence.png from existence.json
     robomimic-venv/bin/python benchmarks/existence.py --robomimic [lift can] [--ship]  # robomimic's pairs
     ... --robomimic can --policies ddim@2      # one policy's pairs (the others' rows are kept)
-    ... --method cma-es --subspace tiled       # another search (default: the `search` defaults)
+    ... --method cma-es --subspace tiled       # another search (Meta-World's table: only printed)
 
 
 One pair is a bundled policy on its task: flow (10 Euler steps), DDIM with 8 steps and DDIM
@@ -425,7 +425,8 @@ def main() -> None:
     rows = [table_row(s) for s in summaries]
     summary = summary_rows(rows)
     wall = time.perf_counter() - start
-    if args.only != list(MT10) or args.policies != list(POLICIES):  # a partial table is only printed
+    if args.only != list(MT10) or args.policies != list(POLICIES) or settings != SETTINGS | {"fresh": FRESH}:
+        # a partial table, or another search's, is only printed: the committed table is the defaults'
         print(markdown(rows, summary, wall, args.workers))
         return
     record = {"settings": settings, "summary": summary, "pairs": rows, "wall_time_s": round(wall)}
