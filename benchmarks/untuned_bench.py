@@ -52,8 +52,8 @@ PAIRS = {  # name -> (task, policy)
     "dppo-lift": ("robomimic/lift", "runs/dppo-lift"),
     "dppo-can": ("robomimic/can", "runs/dppo-can"),
 }
-BUILT_BY = {name: f"robomimic-venv/bin/python benchmarks/dppo_robomimic.py --task {name[5:]}"  # policies
-            for name in ("dppo-lift", "dppo-can")}  # trained here first (deterministic on one thread)
+BUILT_BY = {f"dppo-{task}": f"robomimic-venv/bin/python benchmarks/dppo_robomimic.py --task {task}"
+            for task in ("lift", "can")}  # policies trained here first (deterministic on one thread)
 SHIPPED = {"smolvla-drawer-open": "examples/smolvla_metaworld_ticket.safetensors",  # the examples' tickets
            "lerobot-reach": "examples/lerobot_reach_ticket.safetensors"}
 REFERENCES = {"authors-ticket": "the authors' shipped ticket",  # kind -> label of a ticket shipped before
@@ -92,8 +92,6 @@ def pair_row(name: str, search: str, total: int, workers: int) -> None:
     path = ROWS / arm / f"{name}.json"
     if not path.exists():
         task, policy = PAIRS[name]
-        if name in BUILT_BY and not Path(policy).is_dir():
-            sys.exit(f"{name}: no {policy}/ here; build it first: {BUILT_BY[name]}")
         print(f"[{arm}] {name}", flush=True)
         runs = HERE / "runs" / "untuned" / arm
         budget = {} if total == TOTAL else {"budget": SEARCH_BUDGETS[total], "halving": True}
@@ -226,6 +224,9 @@ def main() -> None:
                         help="search and validation episodes at most")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
+    unbuilt = [name for name in args.pairs if name in BUILT_BY and not Path(PAIRS[name][1]).is_dir()]
+    if unbuilt:
+        parser.error(f"no {PAIRS[unbuilt[0]][1]}/ here; build it first: {BUILT_BY[unbuilt[0]]}")
     kernels.restart_pinned([PAIRS[name][0] for name in args.pairs])  # robomimic's, as the CLI pins
     on_path(FRANKA)
     on_path(HERE.parent)  # the examples' policies and envs, named as the CLI names them
