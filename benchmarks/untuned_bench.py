@@ -3,7 +3,8 @@
     python benchmarks/untuned_bench.py                        # every pair, the default search
     python benchmarks/untuned_bench.py --pairs franka-1003 --search tiled  # CMA-ES over a tiled ticket
     python benchmarks/untuned_bench.py --pairs fetch-push --budgets 250 500 2500  # the budget curve
-    lerobot-venv/bin/python benchmarks/untuned_bench.py --pairs smolvla-drawer-open lerobot-reach
+    lerobot-venv/bin/python benchmarks/untuned_bench.py --pairs smolvla-drawer-open lerobot-reach \
+        lerobot-button
     robomimic-venv/bin/python benchmarks/untuned_bench.py --pairs dppo-lift dppo-can
 
 Each pair is searched and judged as the existence table does it (`existence.run_pair`: the `search`
@@ -18,9 +19,9 @@ same fresh seeds beside ours. Each pair's row is kept in
 benchmarks/results/untuned_bench/<arm>/<pair>.json once judged (<arm>: the search, then @<budget>
 where the budget is not 1250), so a run resumes pair by pair; its run folder under
 benchmarks/runs/untuned/<arm>/ resumes its episodes. The LeRobot examples' pairs (the SmolVLA, the
-UNet diffusion policy on reach) run in LeRobot's venv, their shipped tickets judged beside ours; the
-DPPO-format checkpoints trained here (dppo_robomimic.py builds them into runs/) in robosuite's. Results:
-benchmarks/results/untuned_bench.{md,json}.
+UNet diffusion policies on reach and button-press-topdown) run in LeRobot's venv, their shipped
+tickets judged beside ours; the DPPO-format checkpoints trained here (dppo_robomimic.py builds them
+into runs/) in robosuite's. Results: benchmarks/results/untuned_bench.{md,json}.
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ PAIRS = {  # name -> (task, policy)
     "fetch-push": ("examples.fetch_push:make_env", "examples.fetch_push:make_policy"),
     "smolvla-drawer-open": ("metaworld-pixels/drawer-open-v3", "examples/smolvla_metaworld_policy"),
     "lerobot-reach": ("examples.lerobot_reach:make_env", "examples/lerobot_reach_policy"),
+    "lerobot-button": ("examples.lerobot_button:make_env", "examples/lerobot_button_policy"),
     "dppo-lift": ("robomimic/lift", "runs/dppo-lift"),
     "dppo-can": ("robomimic/can", "runs/dppo-can"),
 }

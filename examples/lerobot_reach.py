@@ -1,6 +1,6 @@
-"""Meta-World reach-v3 as a Gymnasium env in LeRobot's observation format, for the LeRobot
-diffusion policy in `lerobot_reach_policy/` (trained by `lerobot_train.py`). From the repository
-root, in the LeRobot venv (README, "LeRobot"):
+"""Meta-World reach-v3 (and button-press-topdown-v3: `lerobot_button.py`) as a Gymnasium env in
+LeRobot's observation format, for the LeRobot diffusion policy in `lerobot_reach_policy/` (trained
+by `lerobot_train.py`). From the repository root, in the LeRobot venv (README, "LeRobot"):
 
     goldenticket search --policy examples/lerobot_reach_policy --task examples.lerobot_reach:make_env \
         --out runs/lerobot-reach
@@ -26,8 +26,9 @@ def split(obs: np.ndarray) -> dict[str, np.ndarray]:
     return {"agent_pos": obs[STATE].copy(), "environment_state": obs[ENV_STATE].copy()}
 
 
-class LeRobotReach(gym.Env):
-    """reach-v3: move the hand to the goal; `info["is_success"]` within 5 cm."""
+class LeRobotMetaWorld(gym.Env):
+    """A Meta-World task (reach-v3: move the hand to the goal; `info["is_success"]` as Meta-World
+    judges it) with its first object's xyz and the goal's as `environment_state`."""
 
     metadata = {"render_fps": 80}  # Meta-World's control rate
     observation_space = gym.spaces.Dict({
@@ -36,8 +37,8 @@ class LeRobotReach(gym.Env):
     })
     action_space = gym.spaces.Box(-1, 1, (4,), np.float32)
 
-    def __init__(self):
-        self.env = MetaWorldEnv("reach-v3")
+    def __init__(self, task: str = "reach-v3"):
+        self.env = MetaWorldEnv(task)
 
     def reset(self, seed=None, options=None):
         super().reset(seed=seed)
@@ -48,8 +49,8 @@ class LeRobotReach(gym.Env):
         return split(obs), float(success), success, done, {"is_success": success}
 
 
-def make_env() -> gym.Env:
-    return gym.wrappers.TimeLimit(LeRobotReach(), MAX_STEPS)
+def make_env(task: str = "reach-v3") -> gym.Env:
+    return gym.wrappers.TimeLimit(LeRobotMetaWorld(task), MAX_STEPS)
 
 
 def make_vector_env(n: int) -> gym.vector.SyncVectorEnv:

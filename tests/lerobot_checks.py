@@ -8,7 +8,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from examples.lerobot_reach import LeRobotReach
+from examples.lerobot_reach import LeRobotMetaWorld
 from goldenticket.noise import Constant
 from goldenticket.policies import load_policy
 from goldenticket.policies.lerobot import with_ticket
@@ -16,7 +16,7 @@ from goldenticket.rollout import Episode, rollout
 from goldenticket.tasks import get_task
 
 
-class CameraReach(LeRobotReach):
+class CameraReach(LeRobotMetaWorld):
     """reach-v3 seen in `size` px frames: one `pixels` array where `cameras` is empty, else a dict of
     those cameras (each shifted by its index); with LeRobot's instruction attribute `task_description`."""
 
@@ -27,7 +27,8 @@ class CameraReach(LeRobotReach):
         super().__init__()
         frame = gym.spaces.Box(0, 255, (self.size, self.size, 3), np.uint8)
         pixels = gym.spaces.Dict({c: frame for c in self.cameras}) if self.cameras else frame
-        self.observation_space = gym.spaces.Dict({**LeRobotReach.observation_space.spaces, "pixels": pixels})
+        state = LeRobotMetaWorld.observation_space.spaces
+        self.observation_space = gym.spaces.Dict({**state, "pixels": pixels})
 
     def seen(self, obs: dict) -> dict:
         frame = np.zeros((self.size, self.size, 3), np.uint8)

@@ -38,6 +38,7 @@ from lerobot_models import in_hub_cache  # noqa: E402
 
 HAS_LEROBOT = importlib.util.find_spec("lerobot") is not None
 SHIPPED = ROOT / "examples" / "lerobot_reach_policy"
+BUTTON = ROOT / "examples" / "lerobot_button_policy"
 TICKET = ROOT / "examples" / "lerobot_reach_ticket.safetensors"
 REACH = "examples.lerobot_reach:make_env"
 
@@ -305,7 +306,7 @@ def test_the_steps_lerobot_registers_are_those_its_checkpoints_name():
     from goldenticket.policies.lerobot.checkpoint import check_processors, lerobot_steps
 
     steps = lerobot_steps()
-    for folder in (SHIPPED, ROOT / "examples" / "smolvla_metaworld_policy"):
+    for folder in (SHIPPED, BUTTON, ROOT / "examples" / "smolvla_metaworld_policy"):
         check_processors(folder, steps, needed=("device_processor",))
     assert {"pi0_new_line_processor", "pi05_prepare_state_tokenizer_processor_step"} <= steps
 
@@ -316,6 +317,14 @@ def test_the_example_env_is_what_lerobot_eval_runs():
     assert env.call("_max_episode_steps") == (150, 150)
     obs, _ = env.reset(seed=[1_000_000, 1_000_001])
     assert obs["agent_pos"].shape == (2, 4) and obs["environment_state"].shape == (2, 6)
+
+
+@needs_lerobot
+def test_the_button_example_acts_in_its_env(capsys):
+    """The button policy reads its env's observations and succeeds on some of its seeds."""
+    assert main(["evaluate", "--policy", str(BUTTON), "--task", "examples.lerobot_button:make_env",
+                 "--seeds", "1005000:1005008", "--workers", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["base"]["success_rate"] > 0
 
 
 @needs_lerobot
