@@ -320,11 +320,14 @@ def test_the_example_env_is_what_lerobot_eval_runs():
 
 
 @needs_lerobot
-def test_the_button_example_acts_in_its_env(capsys):
-    """The button policy reads its env's observations and succeeds on some of its seeds."""
+def test_the_button_example_and_its_ticket_act_in_their_env(capsys):
+    """The button policy reads its env's observations; its shipped ticket succeeds more often than
+    fresh noise there (88% against 31% on 300 fresh seeds)."""
     assert main(["evaluate", "--policy", str(BUTTON), "--task", "examples.lerobot_button:make_env",
-                 "--seeds", "1005000:1005008", "--workers", "1", "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["base"]["success_rate"] > 0
+                 "--ticket", str(BUTTON.with_name("lerobot_button_ticket.safetensors")),
+                 "--seeds", "1005000:1005016", "--workers", "1", "--json"]) == 0
+    rates = {arm: row["success_rate"] for arm, row in json.loads(capsys.readouterr().out).items()}
+    assert 0 < rates["base"] < rates["b49c6a1b5fad"]
 
 
 @needs_lerobot
