@@ -5,12 +5,13 @@ robomimic").
 
     python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]
     python benchmarks/build_zoo.py --multitask [--only flow]   # the two MT10 policies
-    robomimic-venv/bin/python benchmarks/build_zoo.py --robomimic [--only robomimic/lift]
+    robomimic-venv/bin/python benchmarks/build_zoo.py --robomimic [--only robomimic/lift [flow]]
     python benchmarks/build_zoo.py --remeasure   # re-measure every card's base and zero ticket
 
-Resumable: a policy folder that already has its card.json is kept. Each recipe says why the
-policy is imperfect (few, noisy, multimodal demonstrations); the model card records it with the
-measured held-out success and the exact `goldenticket train` command that rebuilds it.
+Resumable: a policy folder that already has its card.json is kept, and a killed measurement resumes
+(`train.build_policy`). Each recipe says why the policy is imperfect (few, noisy, multimodal
+demonstrations); the model card records it with the measured held-out success and the exact
+`goldenticket train` command that rebuilds it.
 """
 
 from __future__ import annotations
@@ -72,10 +73,10 @@ def build_multitask(kind: str) -> str:
     return f"{name}: base {card['base']['success_rate']:.1%}, zero {card['zero']['success_rate']:.1%}"
 
 
-def remeasure(tasks: list[str], workers: int) -> None:
+def remeasure(tasks: list[str], kinds: list[str], workers: int) -> None:
     """Measure each bundled card's base and zero-ticket success again with today's code."""
     for task in tasks:
-        for kind in TRAINED_STEPS:
+        for kind in kinds:
             folder = BUNDLED_DIR / task / kind
             card = json.loads((folder / "card.json").read_text())
             card |= measure(folder, get_task(task), card["base"]["n"], workers)
@@ -88,21 +89,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=2, help="policies trained at once (1 core each)")
     parser.add_argument("--only", nargs="*", choices=[*MT10, *ROBOMIMIC, *TRAINED_STEPS], default=None,
-                        help="tasks (or, with --multitask, kinds) to build")
+                        help="tasks and kinds to build (default: every task, both kinds)")
     parser.add_argument("--robomimic", action="store_true", help="build the robomimic policies")
     parser.add_argument("--multitask", action="store_true", help="build the MT10 multi-task policies")
     parser.add_argument("--remeasure", action="store_true",
                         help="re-measure the cards of the bundled policies instead of training")
     args = parser.parse_args()
+    only = args.only or []
+    kinds = [k for k in only if k in TRAINED_STEPS] or [*TRAINED_STEPS]
+    tasks = [t for t in only if t not in TRAINED_STEPS] or (ROBOMIMIC if args.robomimic else MT10)
     if args.multitask:
-        todo, run = [k for k in args.only or TRAINED_STEPS
-                     if not (BUNDLED_DIR / "metaworld/mt10" / k / "card.json").is_file()], build_multitask
+        todo, run = [k for k in kinds if not (BUNDLED_DIR / "metaworld/mt10" / k / "card.json").is_file()], \
+            build_multitask
     else:
-        names = [t if t in ROBOMIMIC else f"metaworld/{t}" for t in args.only or (ROBOMIMIC if args.robomimic
-                                                                                  else MT10)]
+        names = [t if t in ROBOMIMIC else f"metaworld/{t}" for t in tasks]
         if args.remeasure:
-            return remeasure(names, args.jobs)
-        todo, run = [(t, k) for t in names for k in TRAINED_STEPS
+            return remeasure(names, kinds, args.jobs)
+        todo, run = [(t, k) for t in names for k in kinds
                      if not (BUNDLED_DIR / t / k / "card.json").is_file()], build
     print(f"{len(todo)} policies to train", flush=True)
     with mp.get_context("spawn").Pool(args.jobs) as pool:

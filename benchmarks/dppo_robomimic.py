@@ -56,15 +56,12 @@ from torch.nn import functional
 from tqdm import tqdm
 
 from goldenticket import kernels
-from goldenticket.config import EngineOptions
 from goldenticket.errors import UserError
-from goldenticket.evaluation import BASE, ZERO, Evaluator, judge
 from goldenticket.files import new_folder_beside, write_atomic
-from goldenticket.noise import Constant
 from goldenticket.policies.dppo import DiffusionMLP, NetworkSpec, alphas_cumprod, save_checkpoint
 from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
-from goldenticket.train import Demos, DemoStyle, collect_demos
+from goldenticket.train import Demos, DemoStyle, collect_demos, measure, measurement_store
 
 
 @dataclass(frozen=True)
@@ -210,15 +207,6 @@ def build(task, recipe: Recipe, out: Path, asked: dict) -> dict:
     return record
 
 
-def measure(folder: Path, task, horizon_steps: int, heldout: int, workers: int) -> dict:
-    """Base and zero-ticket success of the checkpoint in `folder` on the first `heldout` held-out seeds."""
-    zero = Constant(np.zeros((horizon_steps, task.action_dim), np.float32))
-    with (Evaluator.open(str(folder), task, EngineOptions(workers=workers)) as evaluator,
-          evaluator.progress(2 * heldout, "held-out: base and zero ticket")):
-        rows = judge(evaluator, {ZERO: zero}, seeds_in("heldout", heldout)).rows
-    return {arm.key: rows[arm].to_dict() for arm in (BASE, ZERO)}
-
-
 def run(args: argparse.Namespace) -> None:
     task = get_task(f"robomimic/{args.task}")
     recipe = RECIPES[args.task]
@@ -236,7 +224,9 @@ def run(args: argparse.Namespace) -> None:
     else:
         record = build(task, recipe, out, asked)
     start = time.perf_counter()
-    measured = measure(out, task, recipe.horizon_steps, args.heldout, args.workers)
+    with measurement_store(out, out) as store:  # a killed measurement resumes
+        measured = measure(out, task, args.heldout, args.workers, noise_shape=(recipe.horizon_steps,
+                                                                               task.action_dim), store=store)
     record |= {"policy": str(out), "ddim_steps": DENOISING_STEPS, "heldout": args.heldout} | measured
     record["wall_s"] |= {"measure": round(time.perf_counter() - start, 1), "measure_workers": args.workers}
     official = asked == settings(recipe.demos, recipe.style, STEPS, SEED) and args.heldout == HELDOUT

@@ -182,7 +182,7 @@ def curve_markdown(rows: dict) -> str:
              "episodes (its rate on each fresh range; the base or the zero ticket named where it is the "
              "one delivered):", "",
              "| pair | search | " + " | ".join(map(str, totals)) + " |", "|---|---|" + "---|" * len(totals)]
-    for (name, search), curve in kept.items():
+    for (name, search), curve in sorted(kept.items(), key=lambda item: item[0][0]):  # a pair's rows together
         cells = [curve_cell(curve[t]) if t in curve else "-" for t in totals]
         lines.append(f"| {name} | {search} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

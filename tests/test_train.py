@@ -5,6 +5,7 @@ import pytest
 
 from goldenticket.config import TrainConfig
 from goldenticket.policies import PolicyConfig, TicketedPolicy
+from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
 from goldenticket.train import DemoStyle, chunk_dataset, collect_demos, train_policy
 
@@ -52,4 +53,35 @@ def test_a_failed_train_leaves_nothing(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         train.build_policy(TrainConfig(task="metaworld/reach-v3", demos=1, steps=10, heldout=2),
                            tmp_path / "p")
-    assert list(tmp_path.iterdir()) == []
+    assert [p.suffix for p in tmp_path.iterdir()] == [".sqlite"]  # no policy: only its episodes, hidden
+
+
+def test_a_build_killed_while_measuring_resumes_its_measurement(tmp_path, monkeypatch):
+    """Run again, a killed build trains the same policy and runs only the episodes it had not recorded;
+    the record goes once the card is written."""
+    from goldenticket import store, train
+
+    measure, recorded = train.measure, []
+
+    def killed(folder, task, heldout, workers, **options):
+        measure(folder, task, 1, workers, **options)  # the first seed's episodes, then killed
+        raise KeyboardInterrupt
+
+    def record(self, rows):
+        recorded.extend(rows := list(rows))
+        plain_record(self, rows)
+
+    cfg = TrainConfig(task="metaworld/reach-v3", demos=1, steps=10, heldout=2)
+    monkeypatch.setattr(train, "measure", killed)
+    with pytest.raises(KeyboardInterrupt):
+        train.build_policy(cfg, tmp_path / "p")
+    [kept] = tmp_path.iterdir()
+    assert kept.name.startswith(".p.") and kept.name.endswith(".episodes.sqlite")
+    plain_record = store.RunStore.record
+    monkeypatch.setattr(train, "measure", measure)
+    monkeypatch.setattr(store.RunStore, "record", record)
+    card = train.build_policy(cfg, tmp_path / "p")
+    _, second = seeds_in("heldout", 2)
+    assert card["base"]["n"] == card["zero"]["n"] == 2
+    assert sorted((r.ticket_id, r.seed) for r in recorded) == [("base", second), ("zero", second)]
+    assert list(tmp_path.iterdir()) == [tmp_path / "p"]

@@ -3,9 +3,12 @@ LIBERO-Object's), and deterministic policy training."""
 
 from __future__ import annotations
 
+import glob
+import hashlib
 import json
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -21,6 +24,7 @@ from goldenticket.policies import mlp
 from goldenticket.policies.mlp import Denoiser, MLPPolicy, PolicyConfig, ddim_alpha_bar
 from goldenticket.seeds import seeds_in
 from goldenticket.stats import Rate
+from goldenticket.store import RunStore
 from goldenticket.tasks import MetaWorldTask, get_task, libero_experts, robomimic_experts
 from goldenticket.tasks.base import stack
 from goldenticket.tasks.lerobot_envs import LeRobotEnvTask
@@ -245,10 +249,11 @@ def build_policy(cfg: TrainConfig, out: Path) -> dict:
         demos = collect_demos(task, cfg.demos, style, cfg.seed)
         policy, losses = train_policy(policy_cfg, demos, steps=cfg.steps, batch=cfg.batch, seed=cfg.seed)
         policy.save(folder)
+        with measurement_store(out, folder) as store:
+            measured = measure(folder, task, cfg.heldout, cfg.workers, store=store)
         return {"policy": name, "demos": cfg.demos, "demo_attempts": demos.attempts,
                 "style": asdict(style), "train_steps": cfg.steps, "batch": cfg.batch, "seed": cfg.seed,
-                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measure(folder, task, cfg.heldout,
-                                                                               cfg.workers)
+                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measured
 
     return _into_new_folder(out, fill, policy_cfg)
 
@@ -271,9 +276,11 @@ def build_multitask_policy(name: str, recipes: dict[str, tuple[int, DemoStyle]],
         policy.save(folder)
         card = {"policy": name, "demos": sum(len(d.obs) for d in per_task), "train_steps": steps,
                 "seed": seed, "loss_per_1k_steps": [round(x, 5) for x in losses], "tasks": {}}
-        for task, demos, (n, style) in zip(tasks, per_task, recipes.values(), strict=True):
-            card["tasks"][task.name] = {"demos": n, "demo_attempts": demos.attempts, "style": asdict(style)
-                                        } | measure(folder, task, heldout, workers)
+        with measurement_store(out, folder) as store:
+            for task, demos, (n, style) in zip(tasks, per_task, recipes.values(), strict=True):
+                card["tasks"][task.name] = {"demos": n, "demo_attempts": demos.attempts,
+                                            "style": asdict(style)} | measure(folder, task, heldout, workers,
+                                                                              store=store)
         for arm in ("base", "zero"):  # over all tasks' episodes: the task average
             rates = [entry[arm] for entry in card["tasks"].values()]
             card[arm] = Rate.counted(sum(round(r["success_rate"] * r["n"]) for r in rates),
@@ -299,13 +306,31 @@ def _into_new_folder(out: Path, fill: Callable[[Path], dict], cfg: PolicyConfig)
     return json.loads((out / "card.json").read_text())
 
 
-def measure(policy_dir: Path, task, heldout: int, workers: int = 1) -> dict:
-    """Base and zero-ticket success of a saved policy on the first `heldout` held-out seeds."""
+@contextmanager
+def measurement_store(out: Path, folder: Path) -> Iterator[RunStore]:
+    """A run store for measuring the policy just saved in `folder`, beside `out` and named by the
+    policy's files: a killed build, run again, trains the same policy and runs only the episodes
+    its measurement had not recorded. Removed once the measurement is complete."""
+    digest = hashlib.sha256()
+    for file in sorted(folder.iterdir()):
+        digest.update(file.name.encode() + file.read_bytes())
+    path = out.with_name(f".{out.name}.{digest.hexdigest()[:16]}.episodes.sqlite")
+    with RunStore(path) as store:
+        yield store
+    for file in path.parent.glob(f"{glob.escape(path.name)}*"):  # the store and what SQLite keeps beside it
+        file.unlink()
+
+
+def measure(policy_dir: Path, task, heldout: int, workers: int = 1, *,
+            noise_shape: tuple[int, ...] | None = None, store: RunStore | None = None) -> dict:
+    """Base and zero-ticket success of a saved policy on the first `heldout` held-out seeds; its
+    zero ticket has `noise_shape` (default: the goldenticket policy's); episodes go to `store`."""
     from goldenticket.evaluation import BASE, ZERO, Evaluator, judge
     from goldenticket.noise import Constant
 
-    with Evaluator.open(str(policy_dir), task, EngineOptions(workers=workers)) as evaluator:
-        zero = Constant(np.zeros(MLPPolicy.load(policy_dir).noise_shape, np.float32))
+    shape = noise_shape or MLPPolicy.load(policy_dir).noise_shape
+    with Evaluator.open(str(policy_dir), task, EngineOptions(workers=workers), store=store) as evaluator:
+        zero = Constant(np.zeros(shape, np.float32))
         with evaluator.progress(2 * heldout, "held-out: base and zero ticket"):
             rows = judge(evaluator, {ZERO: zero}, seeds_in("heldout", heldout)).rows
     return {arm.key: rows[arm].to_dict() for arm in (BASE, ZERO)}
