@@ -1,7 +1,7 @@
 """Train the policy zoo into the package: a flow and a DDIM policy per MT10 task, one multi-task
 flow and DDIM policy for all ten (`metaworld/mt10/<kind>`, told the task by a one-hot), and a flow
-and a DDIM policy for robomimic's Lift, Can and Square (run in robosuite's venv: README, "LeRobot,
-robomimic").
+and a DDIM policy for robomimic's Lift, Can, Square and Transport (run in robosuite's venv: README,
+"LeRobot, robomimic").
 
     python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]
     python benchmarks/build_zoo.py --multitask [--only flow]   # the two MT10 policies
@@ -56,11 +56,11 @@ def recipe(task: str) -> tuple[int, DemoStyle]:
     return RECIPES.get(task, (20, HABIT))
 
 
-def build(job: tuple[str, str]) -> str:
-    task, kind = job  # a full task name
+def build(job: tuple[str, str, int]) -> str:
+    task, kind, workers = job  # a full task name, and the measurement's worker processes
     demos, style = ROBOMIMIC[task] if task in ROBOMIMIC else recipe(task.removeprefix("metaworld/"))
     cfg = TrainConfig(task=task, kind=kind, demos=demos, steps=TRAIN_STEPS, denoise_steps=TRAINED_STEPS[kind],
-                      **asdict(style))
+                      workers=workers, **asdict(style))
     card = build_policy(cfg, BUNDLED_DIR / task / kind)
     base, zero = card["base"]["success_rate"], card["zero"]["success_rate"]
     return f"{card['policy']}: base {base:.1%}, zero {zero:.1%}"
@@ -88,6 +88,8 @@ def remeasure(tasks: list[str], kinds: list[str], workers: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=2, help="policies trained at once (1 core each)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="worker processes measuring each robomimic or Meta-World policy")
     parser.add_argument("--only", nargs="*", choices=[*MT10, *ROBOMIMIC, *TRAINED_STEPS], default=None,
                         help="tasks and kinds to build (default: every task, both kinds)")
     parser.add_argument("--robomimic", action="store_true", help="build the robomimic policies")
@@ -105,7 +107,7 @@ def main() -> None:
         names = [t if t in ROBOMIMIC else f"metaworld/{t}" for t in tasks]
         if args.remeasure:
             return remeasure(names, kinds, args.jobs)
-        todo, run = [(t, k) for t in names for k in kinds
+        todo, run = [(t, k, args.workers) for t in names for k in kinds
                      if not (BUNDLED_DIR / t / k / "card.json").is_file()], build
     print(f"{len(todo)} policies to train", flush=True)
     with mp.get_context("spawn").Pool(args.jobs) as pool:
