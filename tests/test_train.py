@@ -43,7 +43,7 @@ def test_train_with_few_steps_writes_a_complete_policy(tmp_path, capsys):
     assert main(["train", "--task", "metaworld/reach-v3", "--steps", "300", "--out", str(out)]) == 2
 
 
-def test_a_failed_train_leaves_nothing(tmp_path, monkeypatch):
+def test_a_failed_train_leaves_no_policy(tmp_path, monkeypatch):
     from goldenticket import train
 
     def broken(*args, **kwargs):

@@ -312,7 +312,7 @@ def measurement_store(out: Path, folder: Path) -> Iterator[RunStore]:
     policy's files: a killed build, run again, trains the same policy and runs only the episodes
     its measurement had not recorded. Removed once the measurement is complete."""
     digest = hashlib.sha256()
-    for file in sorted(folder.iterdir()):
+    for file in sorted(f for f in folder.iterdir() if f.is_file()):
         digest.update(file.name.encode() + file.read_bytes())
     path = out.with_name(f".{out.name}.{digest.hexdigest()[:16]}.episodes.sqlite")
     with RunStore(path) as store:
