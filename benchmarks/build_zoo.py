@@ -3,7 +3,7 @@ flow and DDIM policy for all ten (`metaworld/mt10/<kind>`, told the task by a on
 and a DDIM policy for robomimic's Lift, Can, Square and Transport (run in robosuite's venv: README,
 "LeRobot, robomimic").
 
-    python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]
+    python benchmarks/build_zoo.py [--jobs 2] [--only reach-v3 ...]   # or --jobs 1 --workers 2
     python benchmarks/build_zoo.py --multitask [--only flow]   # the two MT10 policies
     robomimic-venv/bin/python benchmarks/build_zoo.py --robomimic [--only robomimic/lift [flow]]
     python benchmarks/build_zoo.py --remeasure   # re-measure every card's base and zero ticket
@@ -97,6 +97,8 @@ def main() -> None:
     parser.add_argument("--remeasure", action="store_true",
                         help="re-measure the cards of the bundled policies instead of training")
     args = parser.parse_args()
+    if args.workers > 1 and args.jobs > 1:
+        parser.error("--workers above 1 needs --jobs 1 (the policy is then built in this process)")
     only = args.only or []
     kinds = [k for k in only if k in TRAINED_STEPS] or [*TRAINED_STEPS]
     tasks = [t for t in only if t not in TRAINED_STEPS] or (ROBOMIMIC if args.robomimic else MT10)
@@ -110,6 +112,10 @@ def main() -> None:
         todo, run = [(t, k, args.workers) for t in names for k in kinds
                      if not (BUNDLED_DIR / t / k / "card.json").is_file()], build
     print(f"{len(todo)} policies to train", flush=True)
+    if args.jobs == 1:  # in this process, whose measurement may start worker processes
+        for job in todo:
+            print(run(job), flush=True)
+        return
     with mp.get_context("spawn").Pool(args.jobs) as pool:
         for line in pool.imap_unordered(run, todo):
             print(line, flush=True)
