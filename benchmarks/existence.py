@@ -48,6 +48,7 @@ from goldenticket.store import RunStore
 from goldenticket.tasks import seeds_in
 from goldenticket.ticket_search import METHODS
 from goldenticket.tickets import ZERO_SOURCE, Ticket
+from goldenticket.zoo import policy_names
 
 HERE = Path(__file__).parent
 POLICIES = ("flow", "ddim@8", "ddim@2")
@@ -70,18 +71,20 @@ def pairs(tasks=MT10) -> list[tuple[str, str]]:
 
 def robomimic_pairs(tasks=ROBOMIMIC) -> list[tuple[str, str]]:
     """The bundled robomimic policies on `tasks`, as `pairs` gives Meta-World's."""
-    return [(t, f"{t}/{p}") for t in tasks for p in POLICIES
-            if (BUNDLED_DIR / t / split_steps(p)[0]).is_dir()]
+    built = policy_names()
+    return [(t, f"{t}/{p}") for t in tasks for p in POLICIES if f"{t}/{split_steps(p)[0]}" in built]
 
 
 def paper_lines(rows: list[dict]) -> list[str]:
     """The paper's robomimic rows beside this run's best ticket per task (on its first fresh range)."""
+    built = policy_names()
     lines = ["", "| task | paper: base | paper: golden | here: base | here: best ticket (fresh seeds) |",
              "|---|---|---|---|---|"]
     for task, (base, golden) in PAPER_ROBOMIMIC.items():
         mine = [r for r in rows if r["task"] == f"robomimic/{task}"]
         best = max(mine, key=lambda r: r["fresh"]["success_rate"], default=None)
-        missing = "not run yet" if (BUNDLED_DIR / "robomimic" / task).is_dir() else "no bundled policy"
+        trained = any(name.startswith(f"robomimic/{task}/") for name in built)
+        missing = "not run yet" if trained else "no bundled policy"
         here = (f"{best['fresh']['base']['success_rate']:.1%} | {best['fresh']['success_rate']:.1%} "
                 f"({best['policy']})") if best else f"- | - ({missing})"
         lines.append(f"| {task} | {base:.1%} | {golden:.1%} | {here} |")

@@ -362,13 +362,16 @@ def test_dsrl_resumes_from_its_last_checkpoint_and_then_only_reports(tmp_path, m
     assert "| reach-v3 | " in said and f"and DSRL-NA {minutes / 2:g} min" in said
 
 
-def test_robomimic_pairs_and_the_papers_rows_beside_them():
+def test_robomimic_pairs_and_the_papers_rows_beside_them(monkeypatch):
+    monkeypatch.setattr(existence, "policy_names", lambda: ["robomimic/lift/ddim", "robomimic/lift/flow"])
     assert ("robomimic/lift", "robomimic/lift/ddim@8") in existence.robomimic_pairs()
+    assert {task for task, _ in existence.robomimic_pairs()} == {"robomimic/lift"}
     fresh = {"success_rate": 0.9, "base": {"success_rate": 0.5}}
     lines = existence.paper_lines([{"task": "robomimic/lift", "policy": "ddim@8", "fresh": fresh}])
     assert "| lift | 78.4% | 96.2% | 50.0% | 90.0% (ddim@8) |" in lines
     assert "| transport | 10.7% | 18.8% | - | - (no bundled policy) |" in lines
-    assert "| can | 42.8% | 80.8% | - | - (not run yet) |" in lines
+    assert "| can | 42.8% | 80.8% | - | - (no bundled policy) |" in lines
+    assert "| lift | 78.4% | 96.2% | - | - (not run yet) |" in existence.paper_lines([])
 
 
 def test_a_robomimic_run_replaces_its_pairs_rows_and_keeps_the_others(tmp_path, monkeypatch):
