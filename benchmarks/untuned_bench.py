@@ -17,7 +17,8 @@ search budget 150 below it, search and validation halved). The paper authors' fr
 licence; needs `pip install dm-robotics-transformations`); their shipped ticket is judged on the
 same fresh seeds beside ours. Each pair's row is kept in
 benchmarks/results/untuned_bench/<arm>/<pair>.json once judged (<arm>: the search, then @<budget>
-where the budget is not 1250), so a run resumes pair by pair; its run folder under
+where the budget is not 1250), the ticket it judged beside it (<pair>.safetensors), so a run resumes
+pair by pair and anyone can judge the ticket again; its run folder under
 benchmarks/runs/untuned/<arm>/ resumes its episodes. The LeRobot examples' pairs (the SmolVLA, the
 UNet diffusion policies on reach and button-press-topdown) run in LeRobot's venv, their shipped
 tickets judged beside ours; the DPPO-format checkpoints trained here (dppo_robomimic.py builds them
@@ -89,7 +90,7 @@ def arm_of(arm: str) -> tuple[str, int]:
 
 def pair_row(name: str, search: str, total: int, workers: int) -> None:
     """The pair's row under `search` within `total` episodes, searched, judged and kept, unless kept
-    already."""
+    already; its judged ticket is kept beside it (`<pair>.safetensors`)."""
     arm = arm_name(search, total)
     path = ROWS / arm / f"{name}.json"
     if not path.exists():
@@ -101,6 +102,7 @@ def pair_row(name: str, search: str, total: int, workers: int) -> None:
         row = table_row(summary)
         row |= {"deliver": summary["deliver"],
                 "episode_seconds": episode_seconds(run_folder(runs, policy), row["ticket"])}
+        Ticket.load(summary["best"]["ticket_path"]).save(path.with_suffix(".safetensors"))
         write_atomic(path, json.dumps(row, indent=2) + "\n")
 
 

@@ -12,6 +12,7 @@ import torch
 import untuned_bench
 
 from goldenticket.errors import UserError
+from goldenticket.tickets import Ticket, TicketRecord
 
 
 def _rate(p, n=200):
@@ -408,8 +409,6 @@ def test_existence_runs_only_the_policies_asked_for(monkeypatch):
 
 
 def test_shipping_one_step_count_keeps_the_tickets_of_the_others(tmp_path, monkeypatch):
-    from goldenticket.tickets import Ticket, TicketRecord
-
     tickets = tmp_path / "robomimic" / "can" / "ddim" / "tickets"
     made_for_8 = Ticket(np.zeros((8, 7), np.float32), TicketRecord(policy="robomimic/can/ddim@8"))
     made_for_8.save(tickets / f"{made_for_8.id}.safetensors")
@@ -422,8 +421,6 @@ def test_shipping_one_step_count_keeps_the_tickets_of_the_others(tmp_path, monke
 
 
 def test_a_golden_ticket_below_the_zero_ticket_on_fresh_seeds_is_not_shipped(tmp_path, monkeypatch):
-    from goldenticket.tickets import Ticket, TicketRecord
-
     ticket = Ticket(np.full((8, 7), 0.5, np.float32), TicketRecord(policy="robomimic/can/flow"))
     path = tmp_path / "found" / f"{ticket.id}.safetensors"
     ticket.save(path)
@@ -459,6 +456,21 @@ def test_untuned_bench_says_what_the_job_delivers_and_sets_the_authors_ticket_be
     rates = "| 1000200:1000400 | 50.0% [45%, 55%] | 45.0% [40%, 50%] | 90.0% [85%, 95%] | 1e-06 | 1e-07 |"
     assert rates in lines[0]
     assert "95.0%" in lines[3] and lines[0].endswith("| 1200 | 10 min |")
+
+
+def test_untuned_bench_keeps_each_rows_ticket_beside_it(tmp_path, monkeypatch):
+    ticket = Ticket(np.full((8, 4), 0.5, np.float32), TicketRecord(policy="franka_pick:make_policy_1003"))
+    judged = ticket.save(tmp_path / "run" / "tickets" / f"{ticket.id}.safetensors")
+    monkeypatch.setattr(untuned_bench, "ROWS", tmp_path / "rows")
+    monkeypatch.setattr(untuned_bench, "run_pair",
+                        lambda *args, **kw: {"best": {"ticket_path": str(judged)}, "deliver": "ticket"})
+    monkeypatch.setattr(untuned_bench, "table_row", lambda summary: {"ticket": ticket.id})
+    monkeypatch.setattr(untuned_bench, "episode_seconds", lambda out, ticket_id: 7)
+    untuned_bench.pair_row("franka-1003", "portfolio", 1250, 1)
+    kept = tmp_path / "rows" / "portfolio"
+    assert json.loads((kept / "franka-1003.json").read_text()) == {"ticket": ticket.id, "deliver": "ticket",
+                                                                   "episode_seconds": 7}
+    assert Ticket.load(kept / "franka-1003.safetensors").id == ticket.id
 
 
 def test_untuned_bench_draws_each_searchs_budget_curve():
