@@ -364,7 +364,8 @@ class TrainConfig:
     """A policy trained on imperfect scripted-expert demonstrations, and its model card."""
 
     task: str = option(help="built-in Meta-World task, e.g. metaworld/reach-v3 (metaworld-pixels/...: a "
-                       "policy that sees camera frames), or robomimic/lift or robomimic/can")
+                       "policy that sees camera frames), or a robomimic task (robomimic/lift, can, "
+                       "square, transport)")
     kind: str = option("flow", "flow matching (Euler steps) or DDIM (eta = 0)", choices=("flow", "ddim"))
     demos: int = option(20, "successful demonstrations to train on")
     grasp_offset: float = option(0.0, "each demonstrator aims at the object shifted by U(+-this) m in x "
