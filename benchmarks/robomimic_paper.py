@@ -69,7 +69,7 @@ def task_rows(task: str, existence: dict) -> list[str]:
     elif trained := read(f"dppo_{task}.json"):
         rows.append(unsearched_row(task, "DPPO-format, trained here", trained["base"], trained.get("zero")))
     if len(rows) == 1:
-        rows.append(f"| {task} | - | no policy trained here yet | | | |")
+        rows.append(f"| {task} | - | no bundled or DPPO-format policy yet | | | |")
     return rows
 
 

@@ -203,3 +203,17 @@ def test_dsrl_steers_cans_flow_policy_through_the_noise_space():
         assert env.env_steps == steps and reward == 0.0 and not terminated
     assert truncated
     assert env.reset()[0].shape == (23,) and env.episodes == 2
+
+
+def test_transport_stages_reads_where_an_episode_stopped(tmp_path):
+    """benchmarks/transport_stages.py: a few steps of an untrained Transport policy move nothing yet."""
+    import transport_stages
+
+    from goldenticket.policies.mlp import MLPPolicy, PolicyConfig
+
+    policy = MLPPolicy(PolicyConfig("test/transport", "flow", 59, 14, hidden=32, layers=2, steps=2))
+    env = get_task("robomimic/transport").make_env()
+    rows = [transport_stages.stages(policy, env, 1000000, 8, base) for base in (False, True)]
+    assert all(r["steps"] == 8 and not r["success"] and not r["payload_binned"] for r in rows)
+    assert all(r["payload_lift"] < 0.01 and r["payload_last_moved"] == 0 for r in rows)
+    assert transport_stages.markdown(rows).count("\n| 1000000 | 8 | False |") == 2
