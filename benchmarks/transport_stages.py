@@ -61,7 +61,7 @@ def markdown(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--policy", required=True, 
+    parser.add_argument("--policy", required=True,
                         help="a policy folder or bundled name, for robomimic/transport")
     parser.add_argument("--seeds", type=int, default=3, help="the first N held-out seeds")
     parser.add_argument("--max-steps", type=int, default=None, help="steps an episode may run (default: 700)")
