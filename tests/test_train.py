@@ -7,7 +7,7 @@ from goldenticket.config import TrainConfig
 from goldenticket.policies import PolicyConfig, TicketedPolicy
 from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
-from goldenticket.train import DemoStyle, chunk_dataset, collect_demos, train_policy
+from goldenticket.train import Demos, DemoStyle, chunk_dataset, collect_demos, train_policy
 
 
 @pytest.mark.slow
@@ -53,7 +53,8 @@ def test_a_failed_train_leaves_no_policy(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         train.build_policy(TrainConfig(task="metaworld/reach-v3", demos=1, steps=10, heldout=2),
                            tmp_path / "p")
-    assert [p.suffix for p in tmp_path.iterdir()] == [".sqlite"]  # no policy: only its episodes, hidden
+    # no policy: only its demonstrations and episodes, hidden
+    assert sorted(p.suffix for p in tmp_path.iterdir()) == [".npz", ".sqlite"]
 
 
 def test_a_build_killed_while_measuring_resumes_its_measurement(tmp_path, monkeypatch):
@@ -75,7 +76,7 @@ def test_a_build_killed_while_measuring_resumes_its_measurement(tmp_path, monkey
     monkeypatch.setattr(train, "measure", killed)
     with pytest.raises(KeyboardInterrupt):
         train.build_policy(cfg, tmp_path / "p")
-    [kept] = tmp_path.iterdir()
+    [kept] = [p for p in tmp_path.iterdir() if not p.name.endswith(".demos.npz")]
     assert kept.name.startswith(".p.") and kept.name.endswith(".episodes.sqlite")
     plain_record = store.RunStore.record
     monkeypatch.setattr(train, "measure", measure)
@@ -85,3 +86,41 @@ def test_a_build_killed_while_measuring_resumes_its_measurement(tmp_path, monkey
     assert card["base"]["n"] == card["zero"]["n"] == 2
     assert sorted((r.ticket_id, r.seed) for r in recorded) == [("base", second), ("zero", second)]
     assert list(tmp_path.iterdir()) == [tmp_path / "p"]
+
+
+def test_a_killed_build_trains_again_on_the_demonstrations_it_collected(tmp_path, monkeypatch):
+    """The demonstrations are kept beside the policy's folder until it is written: run again, a killed
+    build collects none (an unchanged recipe), and nothing of them is left once the policy is written."""
+    from goldenticket import train
+
+    collect, collected = train.collect_demos, []
+
+    def counted(*args):
+        collected.append(args[1])
+        return collect(*args)
+
+    def killed(*args, **options):
+        raise KeyboardInterrupt
+
+    cfg = TrainConfig(task="metaworld/reach-v3", demos=2, steps=10, heldout=1)
+    monkeypatch.setattr(train, "collect_demos", counted)
+    monkeypatch.setattr(train, "measure", killed)
+    with pytest.raises(KeyboardInterrupt):
+        train.build_policy(cfg, tmp_path / "p")
+    [kept] = [p for p in tmp_path.iterdir() if p.name.endswith(".demos.npz")]
+    demos = train.Demos.from_file(kept)
+    assert len(demos.obs) == 2 and demos.attempts >= 2 and demos.obs[0].shape[0] == demos.actions[0].shape[0]
+    monkeypatch.undo()
+    monkeypatch.setattr(train, "collect_demos", counted)
+    card = train.build_policy(cfg, tmp_path / "p")
+    assert collected == [2] and card["demo_attempts"] == demos.attempts
+    assert list(tmp_path.iterdir()) == [tmp_path / "p"]
+
+
+def test_demonstrations_of_frames_survive_the_file(tmp_path):
+    obs = [{"pixels": np.zeros((3, 4, 4, 3), np.uint8), "agent_pos": np.ones((3, 2))}]
+    demos = Demos(obs, [np.ones((3, 4), np.float32)], 5)
+    (tmp_path / "d.npz").write_bytes(demos.to_bytes())
+    back = Demos.from_file(tmp_path / "d.npz")
+    assert back.attempts == 5 and np.array_equal(back.obs[0]["pixels"], obs[0]["pixels"])
+    assert back.obs[0]["agent_pos"].dtype == np.float64 and np.array_equal(back.actions[0], demos.actions[0])

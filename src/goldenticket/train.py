@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import glob
 import hashlib
+import io
 import json
 import shutil
 from collections.abc import Callable, Iterator
@@ -80,6 +81,51 @@ class Demos:
                 merged.obs.append(np.concatenate([obs, one_hot], axis=1))
                 merged.actions.append(actions)
         return merged
+
+    def to_bytes(self) -> bytes:
+        """The demonstrations as an .npz file's bytes (`from_file` reads them back)."""
+        arrays = {"attempts": np.array(self.attempts)}
+        for i, (obs, actions) in enumerate(zip(self.obs, self.actions, strict=True)):
+            arrays |= {f"actions/{i}": actions} | dict(_flat(obs, f"obs/{i}"))
+        buffer = io.BytesIO()
+        np.savez(buffer, **arrays)
+        return buffer.getvalue()
+
+    @classmethod
+    def from_file(cls, path: Path) -> Demos:
+        with np.load(path, allow_pickle=False) as arrays:
+            tree: dict = {}
+            for name in arrays.files:
+                *parents, leaf = name.split("/")
+                node = tree
+                for key in parents:
+                    node = node.setdefault(key, {})
+                node[leaf] = arrays[name]
+        episodes = range(len(tree["actions"]))
+        return cls([tree["obs"][str(i)] for i in episodes], [tree["actions"][str(i)] for i in episodes],
+                   int(tree["attempts"]))
+
+
+def _flat(obs, prefix: str) -> Iterator[tuple[str, np.ndarray]]:
+    """(path, array) for an observation array or a nested dict of them."""
+    if not isinstance(obs, dict):
+        yield prefix, obs
+        return
+    for key, value in obs.items():
+        yield from _flat(value, f"{prefix}/{key}")
+
+
+def kept_demos(out: Path, task: ExpertTask, n: int, style: DemoStyle, seed: int) -> Demos:
+    """`collect_demos`, kept in a hidden file beside `out` named by the recipe: a killed build, run
+    again, trains on the same demonstrations instead of collecting them again (Transport's take
+    about half an hour). `_into_new_folder` removes the file once the policy is written."""
+    recipe = json.dumps([task.name, n, asdict(style), seed]).encode()
+    path = out.with_name(f".{out.name}.{hashlib.sha256(recipe).hexdigest()[:16]}.demos.npz")
+    if path.is_file():
+        return Demos.from_file(path)
+    demos = collect_demos(task, n, style, seed)
+    write_atomic(path, demos.to_bytes())
+    return demos
 
 
 def collect_demos(task: ExpertTask, n: int, style: DemoStyle, seed: int = 0) -> Demos:
@@ -246,7 +292,7 @@ def build_policy(cfg: TrainConfig, out: Path) -> dict:
                               image_size=PIXELS if isinstance(task, PixelsTask) else None)
 
     def fill(folder: Path) -> dict:
-        demos = collect_demos(task, cfg.demos, style, cfg.seed)
+        demos = kept_demos(out, task, cfg.demos, style, cfg.seed)
         policy, losses = train_policy(policy_cfg, demos, steps=cfg.steps, batch=cfg.batch, seed=cfg.seed)
         policy.save(folder)
         with measurement_store(out, folder) as store:
@@ -270,8 +316,8 @@ def build_multitask_policy(name: str, recipes: dict[str, tuple[int, DemoStyle]],
                        steps=denoise_steps, tasks=list(recipes))
 
     def fill(folder: Path) -> dict:
-        per_task = [collect_demos(t, n, style, seed) for t, (n, style) in zip(tasks, recipes.values(),
-                                                                            strict=True)]
+        per_task = [kept_demos(out, t, n, style, seed) for t, (n, style) in zip(tasks, recipes.values(),
+                                                                              strict=True)]
         policy, losses = train_policy(cfg, Demos.of_tasks(per_task), steps=steps, seed=seed)
         policy.save(folder)
         card = {"policy": name, "demos": sum(len(d.obs) for d in per_task), "train_steps": steps,
@@ -301,6 +347,8 @@ def _into_new_folder(out: Path, fill: Callable[[Path], dict], cfg: PolicyConfig)
         if out.exists():
             out.rmdir()
         partial.rename(out)
+        for kept in out.parent.glob(f".{glob.escape(out.name)}.*.demos.npz"):
+            kept.unlink()
     finally:
         shutil.rmtree(partial, ignore_errors=True)
     return json.loads((out / "card.json").read_text())
