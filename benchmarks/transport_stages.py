@@ -7,9 +7,11 @@ arm 0 lifts the lid off the start bin and picks the payload out of it, arm 1 bin
 takes the payload from arm 0 and lowers it into the target bin. For each of the first --seeds
 held-out seeds this runs the policy with the zero ticket (`--base`: fresh noise from the seed's own
 generator) up to --max-steps and reads the simulator: how far the lid moved, whether the trash is
-in its bin, the payload's highest lift and how far it moved, whether it is in the target bin, and
-the step where the payload last moved. It diagnoses a policy whose success is near zero, where a
-success rate says nothing of where its episodes stop. Prints a Markdown table.
+in its bin, the payload's highest lift and how far it moved, whether it is in the target bin, the
+step where the payload last moved, and where the handover stands at the end: arm 1's hand from the
+payload (in the table's plane) and each gripper's opening (arm 0's, then arm 1's). It diagnoses a
+policy whose success is near zero, where a success rate says nothing of where its episodes stop.
+Prints a Markdown table.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 from goldenticket.policies import load_policy
 from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
+from goldenticket.tasks.robomimic_experts import ARM_OBS
 
 MOVED = 0.005  # m: the payload moved at a step when its position changed by more
 
@@ -47,15 +50,19 @@ def stages(policy, env, seed: int, max_steps: int, base: bool) -> dict:
             "lid_moved": float(np.linalg.norm(sim.data.geom_xpos[lid_geom][:2] - lid_start[:2])),
             "trash_binned": bool(transport.trash_in_trash_bin), "payload_lift": float(lift),
             "payload_moved": float(np.linalg.norm(transport.payload_pos[:2] - payload_start[:2])),
-            "payload_last_moved": last_move, "payload_binned": bool(transport.payload_in_target_bin)}
+            "payload_last_moved": last_move, "payload_binned": bool(transport.payload_in_target_bin),
+            "arm1_from_payload": float(np.linalg.norm(obs[ARM_OBS:][:2] - transport.payload_pos[:2])),
+            "openings": [float(obs[ARM_OBS * arm + 7] - obs[ARM_OBS * arm + 8]) for arm in (0, 1)]}
 
 
 def markdown(rows: list[dict]) -> str:
     lines = ["| seed | steps | success | lid moved | trash binned | payload lift | payload moved | "
-             "payload last moved at step | payload binned |", "|---|---|---|---|---|---|---|---|---|"]
+             "payload last moved at step | payload binned | arm 1 from payload | grippers open |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['seed']} | {r['steps']} | {r['success']} | {r['lid_moved']:.2f} m | "
               f"{r['trash_binned']} | {r['payload_lift']:.2f} m | {r['payload_moved']:.2f} m | "
-              f"{r['payload_last_moved']} | {r['payload_binned']} |" for r in rows]
+              f"{r['payload_last_moved']} | {r['payload_binned']} | {r['arm1_from_payload']:.2f} m | "
+              f"{r['openings'][0]:.3f}, {r['openings'][1]:.3f} m |" for r in rows]
     return "\n".join(lines) + "\n"
 
 

@@ -103,6 +103,22 @@ def test_the_transport_expert_without_habits_succeeds_on_2_of_2_seeds():
     assert expert_successes("robomimic/transport", 2) == 2
 
 
+def test_transports_arm_1_comes_in_while_arm_0_still_carries_the_payload():
+    """Arm 1 leaves its wait once the payload is near the handover, not once arm 0 has stopped there:
+    a policy's arm 1 then comes in wherever its arm 0 halts."""
+    from goldenticket.tasks import robomimic_experts
+
+    task = get_task("robomimic/transport")
+    env = task.make_env()
+    obs, expert = env.reset(2000000), robomimic_experts.expert(task.name, env, np.zeros(2), np.zeros(2))
+    lid_arm, trash_arm = expert.arms
+    for _ in range(task.max_steps):
+        if trash_arm.phase == "payload above":
+            break
+        obs = env.step(expert.act(obs))[0]
+    assert (trash_arm.phase, lid_arm.phase) == ("payload above", "payload carry")
+
+
 def test_a_task_without_a_scripted_expert_is_refused():
     from goldenticket.errors import UserError
     from goldenticket.tasks import robomimic_experts
@@ -216,4 +232,5 @@ def test_transport_stages_reads_where_an_episode_stopped(tmp_path):
     rows = [transport_stages.stages(policy, env, 1000000, 8, base) for base in (False, True)]
     assert all(r["steps"] == 8 and not r["success"] and not r["payload_binned"] for r in rows)
     assert all(r["payload_lift"] < 0.01 and r["payload_last_moved"] == 0 for r in rows)
+    assert all(r["arm1_from_payload"] > 0.5 and all(0 <= o < 0.09 for o in r["openings"]) for r in rows)
     assert transport_stages.markdown(rows).count("\n| 1000000 | 8 | False |") == 2

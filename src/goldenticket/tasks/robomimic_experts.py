@@ -43,6 +43,9 @@ HANDOVER = np.array([0.0, 0.055])  # x, y where arm 1 takes the payload: near bo
 HANDOVER_HEIGHT = 1.0  # of arm 0's hand holding the payload out
 ARRIVING = 0.1  # m from the handover within which arm 0 lowers the payload, clear of the start bin
 WAIT_BACK = 0.15  # m (y) behind the handover arm 1 waits
+# m from the handover within which arm 0 has brought arm 1's grasp point when arm 1 comes in for
+# the payload: well before arm 0 stops, so that a policy's arm 1 comes in wherever its arm 0 halts
+COME_IN = 0.12
 HIGH_CARRY = CARRY_HEIGHT + 0.05  # arm 1 carries the payload, held off its centre of mass, this high
 # m from the payload handle's centre where arm 0 holds it: near the head (past the payload's centre
 # of mass, 0.06 m towards the head) when the head lies towards arm 0, else on the handle's other
@@ -376,8 +379,9 @@ class TrashArm(TransportArm):
         return target, 0.0, np.linalg.norm(goal - held[:2]) < REACHED
 
     def _wait(self, hand, thing):
-        """Out of arm 0's way until it holds the payload out."""
-        self._advance(self.partner.phase == "payload hold")
+        """Out of arm 0's way until arm 0 has brought the payload within COME_IN of the handover."""
+        near = np.linalg.norm(self._handle_point(1)[:2] - HANDOVER) < COME_IN
+        self._advance(near and self.partner.phase in ("payload carry", "payload hold"))
         return np.r_[HANDOVER + [0, WAIT_BACK], CARRY_HEIGHT], 0.0, False
 
     def _lower(self, hand, thing):
