@@ -45,7 +45,7 @@ RECIPES = {
 ROBOMIMIC = {"robomimic/lift": (10, DemoStyle(grasp_offset=0.02, action_noise=0.3)),
              "robomimic/can": (20, DemoStyle(grasp_offset=0.02, action_noise=0.2)),
              "robomimic/square": (30, DemoStyle(grasp_offset=0.01, action_noise=0.1)),
-             "robomimic/transport": (100, DemoStyle(grasp_offset=0.01, action_noise=0.05, goal_offset=0.01))}
+             "robomimic/transport": (100, DemoStyle(grasp_offset=0.01, action_noise=0.05, goal_offset=0.02))}
 TRAINED_STEPS = {"flow": 10, "ddim": 8}  # kind -> denoising steps it is trained with
 TRAIN_STEPS = 20_000
 MULTITASK_TRAIN_STEPS = 60_000  # ten tasks' data through one network

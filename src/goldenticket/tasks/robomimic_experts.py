@@ -39,7 +39,9 @@ LOWER_STEPS, OPEN_STEPS = 60, 6
 ARM_OBS = 9  # observation numbers an arm: its hand's position, quaternion and fingers
 RIM = 0.99  # the hand's height with its fingertips clear above a bin's walls
 LID_PLACE = np.array([-0.2, -0.45])  # x, y where arm 0 sets the lid down, beside the start bin
-HANDOVER = np.array([0.0, 0.055])  # x, y where arm 1 takes the payload: near both arms' reach
+# x, y where arm 1 takes the payload, near both arms' reach; each demonstrator shifts it by its goal
+# shift, so that a policy learns to find the payload's handle wherever arm 0 holds it out
+HANDOVER = np.array([0.0, 0.055])
 HANDOVER_HEIGHT = 1.0  # of arm 0's hand holding the payload out
 ARRIVING = 0.1  # m from the handover within which arm 0 lowers the payload, clear of the start bin
 WAIT_BACK = 0.15  # m (y) behind the handover arm 1 waits
@@ -323,6 +325,10 @@ class TransportArm(Waypoints):
     def _carry_height(self, thing: str) -> float:
         return CARRY_HEIGHT
 
+    def _handover(self) -> np.ndarray:
+        """Where, in x and y, arm 1 takes the payload from arm 0: HANDOVER, shifted by the goal shift."""
+        return HANDOVER + [self.goal_shift[0], 0.0]
+
     def _goal(self, hand: np.ndarray, thing: str) -> tuple[np.ndarray, float, bool]:
         """The hand's target carrying `thing`, the fingers' yaw, and whether it has arrived."""
         raise NotImplementedError
@@ -342,7 +348,7 @@ class LidArm(TransportArm):
         if thing == "lid":
             target = np.r_[LID_PLACE, CARRY_HEIGHT]
             return target, 0.0, np.linalg.norm(target - hand) < REACHED
-        target = hand[:2] + HANDOVER - self._handle_point(1)[:2]
+        target = hand[:2] + self._handover() - self._handle_point(1)[:2]
         arriving = np.linalg.norm(target - hand[:2]) < ARRIVING  # clear of the start bin's walls
         target = np.r_[target, HANDOVER_HEIGHT if arriving else CARRY_HEIGHT]
         along_y = self._turn(self._finger_angle() + np.pi / 2 - heading(self._head()), np.pi)
@@ -380,7 +386,7 @@ class TrashArm(TransportArm):
 
     def _wait(self, hand, thing):
         """Out of arm 0's way until arm 0 has brought the payload within COME_IN of the handover."""
-        near = np.linalg.norm(self._handle_point(1)[:2] - HANDOVER) < COME_IN
+        near = np.linalg.norm(self._handle_point(1)[:2] - self._handover()) < COME_IN
         self._advance(near and self.partner.phase in ("payload carry", "payload hold"))
         return np.r_[HANDOVER + [0, WAIT_BACK], CARRY_HEIGHT], 0.0, False
 
