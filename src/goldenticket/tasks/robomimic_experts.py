@@ -39,8 +39,8 @@ LOWER_STEPS, OPEN_STEPS = 60, 6
 ARM_OBS = 9  # observation numbers an arm: its hand's position, quaternion and fingers
 RIM = 0.99  # the hand's height with its fingertips clear above a bin's walls
 LID_PLACE = np.array([-0.2, -0.45])  # x, y where arm 0 sets the lid down, beside the start bin
-# x, y where arm 1 takes the payload, near both arms' reach; each demonstrator shifts it by its goal
-# shift, so that a policy learns to find the payload's handle wherever arm 0 holds it out
+# x, y where arm 1 takes the payload, near both arms' reach; each demonstrator moves it along x by
+# its goal shift's x, so that a policy learns to find the handle wherever arm 0 holds it out
 HANDOVER = np.array([0.0, 0.055])
 HANDOVER_HEIGHT = 1.0  # of arm 0's hand holding the payload out
 ARRIVING = 0.1  # m from the handover within which arm 0 lowers the payload, clear of the start bin
