@@ -121,12 +121,18 @@ def kept_demos(out: Path, task: ExpertTask, n: int, style: DemoStyle, seed: int)
     about half an hour). `_into_new_folder` removes the file once the policy is written; the name
     knows the recipe, not the expert's code: delete the file to collect afresh after changing it."""
     recipe = json.dumps([task.name, n, asdict(style), seed]).encode()
-    path = out.with_name(f".{out.name}.{hashlib.sha256(recipe).hexdigest()[:16]}.demos.npz")
+    path = kept_beside(out, hashlib.sha256(recipe).hexdigest(), "demos.npz")
     if path.is_file():
         return Demos.from_file(path)
     demos = collect_demos(task, n, style, seed)
     write_atomic(path, demos.to_bytes())
     return demos
+
+
+def kept_beside(out: Path, digest: str, kind: str) -> Path:
+    """The hidden file beside `out` that keeps a build's `kind` of work ("demos.npz",
+    "episodes.sqlite") under `digest` until the policy is written."""
+    return out.with_name(f".{out.name}.{digest[:16]}.{kind}")
 
 
 def collect_demos(task: ExpertTask, n: int, style: DemoStyle, seed: int = 0) -> Demos:
@@ -363,7 +369,7 @@ def measurement_store(out: Path, folder: Path) -> Iterator[RunStore]:
     digest = hashlib.sha256()
     for file in sorted(f for f in folder.iterdir() if f.is_file()):
         digest.update(file.name.encode() + file.read_bytes())
-    path = out.with_name(f".{out.name}.{digest.hexdigest()[:16]}.episodes.sqlite")
+    path = kept_beside(out, digest.hexdigest(), "episodes.sqlite")
     with RunStore(path) as store:
         yield store
     for file in path.parent.glob(f"{glob.escape(path.name)}*"):  # the store and what SQLite keeps beside it
