@@ -61,7 +61,7 @@ from goldenticket.files import new_folder_beside, write_atomic
 from goldenticket.policies.dppo import DiffusionMLP, NetworkSpec, alphas_cumprod, save_checkpoint
 from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
-from goldenticket.train import Demos, DemoStyle, collect_demos, measure, measurement_store
+from goldenticket.train import Demos, DemoStyle, forget_kept_demos, kept_demos, measure, measurement_store
 
 
 @dataclass(frozen=True)
@@ -183,9 +183,7 @@ def build(task, recipe: Recipe, out: Path, asked: dict) -> dict:
     also written there as training.json."""
     partial = new_folder_beside(out)
     try:
-        start = time.perf_counter()
-        demos = collect_demos(task, asked["demos"], DemoStyle(**asked["style"]), asked["seed"])
-        demos_s = time.perf_counter() - start
+        demos = kept_demos(out, task, asked["demos"], DemoStyle(**asked["style"]), asked["seed"])
         norm = normalization(demos)
         obs, chunks = dataset(demos, norm, recipe.horizon_steps)
         start = time.perf_counter()
@@ -197,11 +195,12 @@ def build(task, recipe: Recipe, out: Path, asked: dict) -> dict:
                   "demo_steps": int(sum(len(a) for a in demos.actions)), "training_pairs": len(chunks),
                   "epochs": epochs, "train_steps": epochs * math.ceil(len(chunks) / BATCH),
                   "loss_per_1k_steps": [round(x, 5) for x in losses],
-                  "wall_s": {"demos": round(demos_s, 1), "train": round(train_s, 1)}}
+                  "wall_s": {"demos": round(demos.seconds, 1), "train": round(train_s, 1)}}
         write_atomic(partial / "training.json", json.dumps(record, indent=2) + "\n")
         if out.exists():
             out.rmdir()
         partial.rename(out)
+        forget_kept_demos(out)
     finally:
         shutil.rmtree(partial, ignore_errors=True)
     return record

@@ -119,8 +119,9 @@ def test_a_killed_build_trains_again_on_the_demonstrations_it_collected(tmp_path
 
 def test_demonstrations_of_frames_survive_the_file(tmp_path):
     obs = [{"pixels": np.zeros((3, 4, 4, 3), np.uint8), "agent_pos": np.ones((3, 2))}]
-    demos = Demos(obs, [np.ones((3, 4), np.float32)], 5)
+    demos = Demos(obs, [np.ones((3, 4), np.float32)], 5, 61.5)
     (tmp_path / "d.npz").write_bytes(demos.to_bytes())
     back = Demos.from_file(tmp_path / "d.npz")
-    assert back.attempts == 5 and np.array_equal(back.obs[0]["pixels"], obs[0]["pixels"])
+    assert (back.attempts, back.seconds) == (5, 61.5)
+    assert np.array_equal(back.obs[0]["pixels"], obs[0]["pixels"])
     assert back.obs[0]["agent_pos"].dtype == np.float64 and np.array_equal(back.actions[0], demos.actions[0])

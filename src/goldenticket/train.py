@@ -8,6 +8,7 @@ import hashlib
 import io
 import json
 import shutil
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -69,11 +70,12 @@ class Demos:
     obs: list[np.ndarray]  # per episode [T, obs_dim], or [T, obs_dim + tasks] with a task one-hot
     actions: list[np.ndarray]  # per episode [T, action_dim]
     attempts: int
+    seconds: float = 0.0  # the wall time their collection took
 
     @classmethod
     def of_tasks(cls, per_task: list[Demos]) -> Demos:
         """One multi-task dataset: each episode's observations followed by its task's one-hot."""
-        merged = cls([], [], sum(d.attempts for d in per_task))
+        merged = cls([], [], sum(d.attempts for d in per_task), sum(d.seconds for d in per_task))
         for index, demos in enumerate(per_task):
             for obs, actions in zip(demos.obs, demos.actions, strict=True):
                 one_hot = np.zeros((len(obs), len(per_task)), np.float32)
@@ -84,7 +86,7 @@ class Demos:
 
     def to_bytes(self) -> bytes:
         """The demonstrations as an .npz file's bytes (`from_file` reads them back)."""
-        arrays = {"attempts": np.array(self.attempts)}
+        arrays = {"attempts": np.array(self.attempts), "seconds": np.array(self.seconds)}
         for i, (obs, actions) in enumerate(zip(self.obs, self.actions, strict=True)):
             arrays |= {f"actions/{i}": actions} | dict(_flat(obs, f"obs/{i}"))
         buffer = io.BytesIO()
@@ -103,7 +105,7 @@ class Demos:
                 node[leaf] = arrays[name]
         episodes = range(len(tree["actions"]))
         return cls([tree["obs"][str(i)] for i in episodes], [tree["actions"][str(i)] for i in episodes],
-                   int(tree["attempts"]))
+                   int(tree["attempts"]), float(tree["seconds"]))
 
 
 def _flat(obs, prefix: str) -> Iterator[tuple[str, np.ndarray]]:
@@ -118,7 +120,7 @@ def _flat(obs, prefix: str) -> Iterator[tuple[str, np.ndarray]]:
 def kept_demos(out: Path, task: ExpertTask, n: int, style: DemoStyle, seed: int) -> Demos:
     """`collect_demos`, kept in a hidden file beside `out` named by the recipe: a killed build, run
     again, trains on the same demonstrations instead of collecting them again (Transport's take
-    about half an hour). `_into_new_folder` removes the file once the policy is written; the name
+    about half an hour). `forget_kept_demos` removes the file once the policy is written; the name
     knows the recipe, not the expert's code: delete the file to collect afresh after changing it."""
     recipe = json.dumps([task.name, n, asdict(style), seed]).encode()
     path = kept_beside(out, hashlib.sha256(recipe).hexdigest(), "demos.npz")
@@ -127,6 +129,12 @@ def kept_demos(out: Path, task: ExpertTask, n: int, style: DemoStyle, seed: int)
     demos = collect_demos(task, n, style, seed)
     write_atomic(path, demos.to_bytes())
     return demos
+
+
+def forget_kept_demos(out: Path) -> None:
+    """Remove the demonstrations `kept_demos` kept beside `out`, once its policy is written."""
+    for kept in out.parent.glob(f".{glob.escape(out.name)}.*.demos.npz"):
+        kept.unlink()
 
 
 def kept_beside(out: Path, digest: str, kind: str) -> Path:
@@ -140,6 +148,7 @@ def collect_demos(task: ExpertTask, n: int, style: DemoStyle, seed: int = 0) -> 
     env = task.make_env()
     experts = _experts(task, env)
     rng = np.random.default_rng(seed)
+    start = time.perf_counter()
     demos = Demos([], [], 0)
     bar = tqdm(total=n, desc="demonstrations", unit="demo")
     for episode_seed in seeds_in("train", 100 * n):
@@ -153,6 +162,7 @@ def collect_demos(task: ExpertTask, n: int, style: DemoStyle, seed: int = 0) -> 
             demos.actions.append(act_seq)
             bar.update()
     bar.close()
+    demos.seconds = time.perf_counter() - start
     if len(demos.obs) < n:
         raise UserError(f"only {len(demos.obs)} of {n} expert demos succeeded in {demos.attempts} "
                         "attempts; lower --grasp-offset, --goal-offset or --action-noise")
@@ -354,8 +364,7 @@ def _into_new_folder(out: Path, fill: Callable[[Path], dict], cfg: PolicyConfig)
         if out.exists():
             out.rmdir()
         partial.rename(out)
-        for kept in out.parent.glob(f".{glob.escape(out.name)}.*.demos.npz"):
-            kept.unlink()
+        forget_kept_demos(out)
     finally:
         shutil.rmtree(partial, ignore_errors=True)
     return json.loads((out / "card.json").read_text())
