@@ -151,6 +151,20 @@ def test_the_libero_object_expert_puts_the_object_in_the_basket():
     assert demos.attempts == 1 and demos.actions[0].shape[1] == 7
 
 
+def test_the_shipped_libero_smolvla_puts_the_soup_in_the_basket_with_the_zero_ticket():
+    """The shipped LIBERO-Object SmolVLA (examples/smolvla_libero_policy) on its frames, with the zero
+    ticket, on held-out seed 1005000 of libero/object/0: the soup lands in the basket, as it did on
+    all 20 seeds of benchmarks/results/libero_smolvla.md."""
+    from examples.smolvla_libero_train import RECIPE
+    from goldenticket.noise import Constant
+    from goldenticket.rollout import Episode, rollout
+
+    policy = load_policy(str(RECIPE.policy_dir))
+    task = get_task("libero/object/0", env_options=RECIPE.task_options)
+    [result] = rollout(policy, task, [Episode(Constant(np.zeros(policy.noise_shape, np.float32)), 1005000)])
+    assert result.success
+
+
 def test_the_libero_smolvla_recipe_writes_what_a_libero_task_gives_the_policy(libero_task):
     """examples/smolvla_libero_train.py writes each observation under the key, in the shape and with the
     values LeRobot's eval gives a policy: as lerobot-train reads the dataset, the task's observations."""
