@@ -182,6 +182,35 @@ def test_a_dppo_checkpoint_trained_on_lift_demonstrations_is_searched_alike_by_1
         assert runs[0].get(key) == runs[1].get(key)
 
 
+def test_a_killed_dppo_build_trains_again_on_the_demonstrations_it_collected(tmp_path, monkeypatch):
+    """benchmarks/dppo_robomimic.py keeps its demonstrations beside --out until the checkpoint is
+    written: killed while training, it collects none when run again, and records how long they took."""
+    import dppo_robomimic as bench
+
+    from goldenticket import train
+    from goldenticket.train import DemoStyle
+
+    collect, collected, pretrain = train.collect_demos, [], bench.train
+
+    def counted(*args):
+        collected.append(args[1])
+        return collect(*args)
+
+    def killed(*args, **options):
+        raise KeyboardInterrupt
+
+    task, recipe = get_task("robomimic/lift"), bench.RECIPES["lift"]
+    asked = bench.settings(2, DemoStyle(), 3, 0)
+    monkeypatch.setattr(train, "collect_demos", counted)
+    monkeypatch.setattr(bench, "train", killed)
+    with pytest.raises(KeyboardInterrupt):
+        bench.build(task, recipe, tmp_path / "dppo", asked)
+    monkeypatch.setattr(bench, "train", pretrain)
+    record = bench.build(task, recipe, tmp_path / "dppo", asked)
+    assert collected == [2] and record["wall_s"]["demos"] > 0
+    assert list(tmp_path.iterdir()) == [tmp_path / "dppo"]
+
+
 def dppo_for_10_observations(folder) -> str:
     """An untrained DPPO checkpoint for 10 observations, in DPPO's format."""
     import torch
