@@ -119,8 +119,8 @@ def _flat(obs, prefix: str) -> Iterator[tuple[str, np.ndarray]]:
 
 def kept_demos(out: Path, task: ExpertTask, n: int, style: DemoStyle, seed: int) -> Demos:
     """`collect_demos`, kept in a hidden file beside `out` named by the recipe: a killed build, run
-    again, trains on the same demonstrations instead of collecting them again (Transport's take
-    about half an hour). `forget_kept_demos` removes the file once the policy is written; the name
+    again, trains on the same demonstrations instead of collecting them again (Transport's took
+    40 minutes). `forget_kept_demos` removes the file once the policy is written; the name
     knows the recipe, not the expert's code: delete the file to collect afresh after changing it."""
     recipe = json.dumps([task.name, n, asdict(style), seed]).encode()
     path = kept_beside(out, hashlib.sha256(recipe).hexdigest(), "demos.npz")
