@@ -107,7 +107,21 @@ def run_pair(task: str, policy: str, runs: Path, workers: int, fresh_ranges: int
     best = summary["best"]
     for i, key in enumerate(FRESH_RANGES[:fresh_ranges]):
         best[key] = fresh_check(Path(best["ticket_path"]), policy, task, out, workers, i)
-    return summary | {"wall_time_s": round(time.perf_counter() - start)}
+    return summary | {"wall_time_s": round(time.perf_counter() - start),
+                      "episode_seconds": episode_seconds(out, best["ticket_id"])}
+
+
+def episode_seconds(out: Path, ticket: str) -> int:
+    """The pair's own episodes' wall times in its run folder, summed: the search's, validation's and
+    verdict's, and the fresh check's of the base, the zero ticket and `ticket` (not those of a ticket
+    judged beside them there). What the pair cost, however many times its run was stopped and resumed
+    (its wall time counts only the last)."""
+    total = 0.0
+    for path in out.glob("*.sqlite"):
+        with RunStore(path) as store:
+            total += sum(row.wall_time for row in store.episodes()
+                         if path.name == "run.sqlite" or row.ticket_id in ("base", "zero", ticket))
+    return round(total)
 
 
 def fresh_check(path: Path, policy: str, task: str, out: Path, workers: int, i: int = 0) -> dict:
@@ -146,7 +160,8 @@ def table_row(s: dict) -> dict:
             "search": f"{s['method']}, {s['search_episodes']} episodes, "
                       f"{'' if s['halving'] else 'not '}halved",
             "search_and_validation": s["search_episodes"] + s["validation_episodes"],
-            "stopped_because": s["stopped_because"], "wall_time_s": s["wall_time_s"]}
+            "stopped_because": s["stopped_because"], "wall_time_s": s["wall_time_s"],
+            "episode_seconds": s["episode_seconds"]}
 
 
 def summary_rows(rows: list[dict]) -> dict:
@@ -459,10 +474,15 @@ def write_robomimic(summaries: list[dict], rows: list[dict], ship_them: bool, se
 
 
 def wall_lines(rows: list[dict]) -> list[str]:
-    """Each pair's wall time: the table's pairs may come from several runs."""
-    return ["", "Wall time per pair (search, validation, held-out and both fresh ranges; 2 workers): " +
-            ", ".join(f"{r['task'].removeprefix('robomimic/')} {r['policy']} {r['wall_time_s'] / 60:.0f} min"
-                      for r in rows) + "."]
+    """Each pair's wall time, and where recorded its episodes' own times summed over every part of a
+    run stopped and resumed: the table's pairs may come from several runs."""
+    def cost(r: dict) -> str:
+        spent = f" ({r['episode_seconds'] / 60:.0f} min of episodes)" if "episode_seconds" in r else ""
+        return f"{r['task'].removeprefix('robomimic/')} {r['policy']} {r['wall_time_s'] / 60:.0f} min{spent}"
+
+    return ["", "Wall time per pair (search, validation, held-out and both fresh ranges; the last part "
+                "of a resumed run), with the episodes' own times summed, one core each, where recorded: " +
+            ", ".join(cost(r) for r in rows) + "."]
 
 if __name__ == "__main__":
     kernels.restart_pinned(ROBOMIMIC if "--robomimic" in sys.argv else [])  # as the CLI pins, before any work

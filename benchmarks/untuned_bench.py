@@ -39,7 +39,6 @@ from results_files import RESULTS, write_results
 from goldenticket import kernels
 from goldenticket.files import write_atomic
 from goldenticket.report import rate_text
-from goldenticket.store import RunStore
 from goldenticket.tickets import Ticket
 
 FRANKA = HERE.parent.parent / "shared" / "franka_sim"
@@ -99,24 +98,9 @@ def pair_row(name: str, search: str, total: int, workers: int) -> None:
         runs = HERE / "runs" / "untuned" / arm
         budget = {} if total == TOTAL else {"budget": SEARCH_BUDGETS[total], "halving": True}
         summary = run_pair(task, policy, runs, workers, **SEARCHES[search] | budget | JUDGING[name])
-        row = table_row(summary)
-        row |= {"deliver": summary["deliver"],
-                "episode_seconds": episode_seconds(run_folder(runs, policy), row["ticket"])}
+        row = table_row(summary) | {"deliver": summary["deliver"]}
         Ticket.load(summary["best"]["ticket_path"]).save(path.with_suffix(".safetensors"))
         write_atomic(path, json.dumps(row, indent=2) + "\n")
-
-
-def episode_seconds(out: Path, ticket: str) -> int:
-    """The pair's own episodes' wall times in its run folder, summed: the search's, validation's and
-    verdict's, and the fresh check's of the base, the zero ticket and `ticket` (not those of a ticket
-    judged beside them there). What the pair cost, however many times its run was stopped and resumed
-    (its wall time counts only the last)."""
-    total = 0.0
-    for path in out.glob("*.sqlite"):
-        with RunStore(path) as store:
-            total += sum(row.wall_time for row in store.episodes()
-                         if path.name == "run.sqlite" or row.ticket_id in ("base", "zero", ticket))
-    return round(total)
 
 
 def reference_row(name: str, search: str, workers: int) -> None:

@@ -12,6 +12,7 @@ import torch
 import untuned_bench
 
 from goldenticket.errors import UserError
+from goldenticket.store import EpisodeRow, RunStore
 from goldenticket.tickets import Ticket, TicketRecord
 
 
@@ -396,6 +397,20 @@ def test_a_robomimic_run_replaces_its_pairs_rows_and_keeps_the_others(tmp_path, 
     assert record["wall_time_s"] == 1200
     table = (tmp_path / "robomimic_existence.md").read_text()
     assert "lift flow 10 min, can flow 10 min." in table and "Wall time of this run" not in table
+    resumed = row("robomimic/can", 0.6) | {"episode_seconds": 7200}
+    existence.write_robomimic([], [resumed], ship_them=False, settings=existence.SETTINGS)
+    assert "can flow 10 min (120 min of episodes)." in (tmp_path / "robomimic_existence.md").read_text()
+
+
+def test_a_pairs_episodes_time_counts_every_part_of_its_run_and_only_its_own_fresh_arms(tmp_path):
+    def episode(ticket, seconds):
+        return EpisodeRow(ticket, "metaworld/reach-v3", len(ticket), "heldout", True, 1.0, 10, seconds)
+
+    with RunStore(tmp_path / "run.sqlite") as store:  # search, validation, verdict: all its own
+        store.record([episode("abc", 100.0), episode("def", 20.0), episode("zero", 2.0)])
+    with RunStore(tmp_path / f"{existence.FRESH_RANGES[0]}.sqlite") as store:
+        store.record([episode("abc", 10.0), episode("base", 5.0), episode("def", 1000.0)])
+    assert existence.episode_seconds(tmp_path, "abc") == 137
 
 
 def test_existence_runs_only_the_policies_asked_for(monkeypatch):
@@ -464,12 +479,12 @@ def test_untuned_bench_keeps_each_rows_ticket_beside_it(tmp_path, monkeypatch):
     monkeypatch.setattr(untuned_bench, "ROWS", tmp_path / "rows")
     monkeypatch.setattr(untuned_bench, "run_pair",
                         lambda *args, **kw: {"best": {"ticket_path": str(judged)}, "deliver": "ticket"})
-    monkeypatch.setattr(untuned_bench, "table_row", lambda summary: {"ticket": ticket.id})
-    monkeypatch.setattr(untuned_bench, "episode_seconds", lambda out, ticket_id: 7)
+    monkeypatch.setattr(untuned_bench, "table_row",
+                        lambda summary: {"ticket": ticket.id, "episode_seconds": 7})
     untuned_bench.pair_row("franka-1003", "portfolio", 1250, 1)
     kept = tmp_path / "rows" / "portfolio"
-    assert json.loads((kept / "franka-1003.json").read_text()) == {"ticket": ticket.id, "deliver": "ticket",
-                                                                   "episode_seconds": 7}
+    assert json.loads((kept / "franka-1003.json").read_text()) == {"ticket": ticket.id, "episode_seconds": 7,
+                                                                   "deliver": "ticket"}
     assert Ticket.load(kept / "franka-1003.safetensors").id == ticket.id
 
 
