@@ -28,8 +28,10 @@ Training is deterministic for --seed on one thread (an explicit torch.Generator 
 timesteps and noise). The checkpoint is written in DPPO's format (state_<epoch>.pt, config.yaml,
 normalization.npz, with training.json beside them) to --out, then its base policy and zero ticket run
 through goldenticket's evaluation on the first --heldout held-out seeds, as the checkpoint's config
-runs it (DDIM over its 20 timesteps). Resumable: an --out holding a finished training is measured
-again, not retrained; a training is written to a hidden folder that becomes --out when complete.
+runs it (DDIM over its 20 timesteps). Resumable: the demonstrations are kept in a hidden file beside
+--out until the checkpoint is written, a training is written to a hidden folder that becomes --out
+when complete, an --out holding a finished training is measured, not retrained, and the measurement
+records each episode as it ends, so a killed run, run again, runs only what it had not finished.
 
     ~/.venvs/robomimic/bin/python benchmarks/dppo_robomimic.py [--task lift] [--workers 2]
 
@@ -217,6 +219,7 @@ def run(args: argparse.Namespace) -> None:
         if record["settings"] != asked:
             raise UserError(f"{out} holds a training from other settings ({record['settings']}); choose "
                             "another --out")
+        forget_kept_demos(out)  # where a run was killed between writing the checkpoint and this
         print(f"{out}: trained before; measuring it")
     elif out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise UserError(f"--out {out} exists and holds no finished training; choose a new folder")

@@ -117,6 +117,17 @@ def test_a_killed_build_trains_again_on_the_demonstrations_it_collected(tmp_path
     assert list(tmp_path.iterdir()) == [tmp_path / "p"]
 
 
+def test_a_written_policy_forgets_its_own_kept_demonstrations_and_no_other_folders(tmp_path):
+    from goldenticket import train
+
+    mine = train.kept_beside(tmp_path / "lift", "0" * 64, "demos.npz")
+    others = [train.kept_beside(tmp_path / name, "1" * 64, "demos.npz") for name in ("lift.v2", "lif")]
+    for path in (mine, *others):
+        path.write_bytes(b"")
+    train.forget_kept_demos(tmp_path / "lift")
+    assert sorted(tmp_path.iterdir()) == sorted(others)
+
+
 def test_demonstrations_of_frames_survive_the_file(tmp_path):
     obs = [{"pixels": np.zeros((3, 4, 4, 3), np.uint8), "agent_pos": np.ones((3, 2))}]
     demos = Demos(obs, [np.ones((3, 4), np.float32)], 5, 61.5)

@@ -119,8 +119,8 @@ def _flat(obs, prefix: str) -> Iterator[tuple[str, np.ndarray]]:
 
 def kept_demos(out: Path, task: ExpertTask, n: int, style: DemoStyle, seed: int) -> Demos:
     """`collect_demos`, kept in a hidden file beside `out` named by the recipe: a killed build, run
-    again, trains on the same demonstrations instead of collecting them again (Transport's took
-    40 minutes). `forget_kept_demos` removes the file once the policy is written; the name
+    again, trains on the same demonstrations instead of collecting them again (a Transport recipe's
+    take most of an hour). `forget_kept_demos` removes the file once the policy is written; the name
     knows the recipe, not the expert's code: delete the file to collect afresh after changing it."""
     recipe = json.dumps([task.name, n, asdict(style), seed]).encode()
     path = kept_beside(out, hashlib.sha256(recipe).hexdigest(), "demos.npz")
@@ -133,8 +133,9 @@ def kept_demos(out: Path, task: ExpertTask, n: int, style: DemoStyle, seed: int)
 
 def forget_kept_demos(out: Path) -> None:
     """Remove the demonstrations `kept_demos` kept beside `out`, once its policy is written."""
-    for kept in out.parent.glob(f".{glob.escape(out.name)}.*.demos.npz"):
-        kept.unlink()
+    pattern = kept_beside(out.with_name(glob.escape(out.name)), "?" * 16, "demos.npz").name
+    for kept in out.parent.glob(pattern):  # any recipe's digest, and no other folder's files
+        kept.unlink(missing_ok=True)
 
 
 def kept_beside(out: Path, digest: str, kind: str) -> Path:
