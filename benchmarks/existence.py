@@ -107,7 +107,7 @@ def run_pair(task: str, policy: str, runs: Path, workers: int, fresh_ranges: int
     best = summary["best"]
     for i, key in enumerate(FRESH_RANGES[:fresh_ranges]):
         best[key] = fresh_check(Path(best["ticket_path"]), policy, task, out, workers, i)
-    return summary | {"wall_time_s": round(time.perf_counter() - start),
+    return summary | {"wall_time_s": round(time.perf_counter() - start), "workers": workers,
                       "episode_seconds": episode_seconds(out, best["ticket_id"])}
 
 
@@ -160,7 +160,7 @@ def table_row(s: dict) -> dict:
             "search": f"{s['method']}, {s['search_episodes']} episodes, "
                       f"{'' if s['halving'] else 'not '}halved",
             "search_and_validation": s["search_episodes"] + s["validation_episodes"],
-            "stopped_because": s["stopped_because"], "wall_time_s": s["wall_time_s"],
+            "stopped_because": s["stopped_because"], "wall_time_s": s["wall_time_s"], "workers": s["workers"],
             "episode_seconds": s["episode_seconds"]}
 
 
@@ -477,11 +477,12 @@ def wall_lines(rows: list[dict]) -> list[str]:
     """Each pair's wall time, and where recorded its episodes' own times summed over every part of a
     run stopped and resumed: the table's pairs may come from several runs."""
     def cost(r: dict) -> str:
-        spent = f" ({r['episode_seconds'] / 60:.0f} min of episodes)" if "episode_seconds" in r else ""
-        return f"{r['task'].removeprefix('robomimic/')} {r['policy']} {r['wall_time_s'] / 60:.0f} min{spent}"
+        spent = f", {r['episode_seconds'] / 60:.0f} min of episodes" if "episode_seconds" in r else ""
+        return (f"{r['task'].removeprefix('robomimic/')} {r['policy']} {r['wall_time_s'] / 60:.0f} min "
+                f"({r['workers']} worker(s){spent})")
 
-    return ["", "Wall time per pair (search, validation, held-out and both fresh ranges; the last part "
-                "of a resumed run), with the episodes' own times summed, one core each, where recorded: " +
+    return ["", "Wall time per pair (search, validation, held-out and both fresh ranges; of a resumed run, "
+                "its last part), with the episodes' own times summed, one core each, where recorded: " +
             ", ".join(cost(r) for r in rows) + "."]
 
 if __name__ == "__main__":

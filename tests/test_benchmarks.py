@@ -386,7 +386,7 @@ def test_a_robomimic_run_replaces_its_pairs_rows_and_keeps_the_others(tmp_path, 
     monkeypatch.setattr(existence, "robomimic_pairs", lambda tasks=None: order)
 
     def row(task, best):
-        return _row(0.5, 0.5, best, 0.01, 0.5) | {"task": task, "wall_time_s": 600}
+        return _row(0.5, 0.5, best, 0.01, 0.5) | {"task": task, "wall_time_s": 600, "workers": 2}
 
     existence.write_robomimic([], [row("robomimic/can", 0.6)], ship_them=False, settings=existence.SETTINGS)
     existence.write_robomimic([], [row("robomimic/lift", 0.7)], ship_them=False, settings=existence.SETTINGS)
@@ -396,10 +396,12 @@ def test_a_robomimic_run_replaces_its_pairs_rows_and_keeps_the_others(tmp_path, 
         ("robomimic/lift", 0.8), ("robomimic/can", 0.6)]
     assert record["wall_time_s"] == 1200
     table = (tmp_path / "robomimic_existence.md").read_text()
-    assert "lift flow 10 min, can flow 10 min." in table and "Wall time of this run" not in table
+    assert "lift flow 10 min (2 worker(s)), can flow 10 min (2 worker(s))." in table
+    assert "Wall time of this run" not in table
     resumed = row("robomimic/can", 0.6) | {"episode_seconds": 7200}
     existence.write_robomimic([], [resumed], ship_them=False, settings=existence.SETTINGS)
-    assert "can flow 10 min (120 min of episodes)." in (tmp_path / "robomimic_existence.md").read_text()
+    table = (tmp_path / "robomimic_existence.md").read_text()
+    assert "can flow 10 min (2 worker(s), 120 min of episodes)." in table
 
 
 def test_a_pairs_episodes_time_counts_every_part_of_its_run_and_only_its_own_fresh_arms(tmp_path):
