@@ -73,18 +73,22 @@ def test_a_build_killed_while_measuring_resumes_its_measurement(tmp_path, monkey
         plain_record(self, rows)
 
     cfg = TrainConfig(task="metaworld/reach-v3", demos=1, steps=10, heldout=2)
+    plain_record = store.RunStore.record
+    monkeypatch.setattr(store.RunStore, "record", record)
     monkeypatch.setattr(train, "measure", killed)
     with pytest.raises(KeyboardInterrupt):
         train.build_policy(cfg, tmp_path / "p")
     [kept] = [p for p in tmp_path.iterdir() if not p.name.endswith(".demos.npz")]
     assert kept.name.startswith(".p.") and kept.name.endswith(".episodes.sqlite")
-    plain_record = store.RunStore.record
+    first, recorded[:] = list(recorded), []
     monkeypatch.setattr(train, "measure", measure)
-    monkeypatch.setattr(store.RunStore, "record", record)
     card = train.build_policy(cfg, tmp_path / "p")
     _, second = seeds_in("heldout", 2)
     assert card["base"]["n"] == card["zero"]["n"] == 2
     assert sorted((r.ticket_id, r.seed) for r in recorded) == [("base", second), ("zero", second)]
+    both = sum(r.wall_time for r in first + recorded)  # the measurement's cost counts both parts
+    assert card["wall_s"]["measure_episodes"] == pytest.approx(both, abs=0.051) and len(first) == 2
+    assert "- **Build time**: demonstrations" in (tmp_path / "p" / "MODEL_CARD.md").read_text()
     assert list(tmp_path.iterdir()) == [tmp_path / "p"]
 
 

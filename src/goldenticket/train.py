@@ -311,13 +311,16 @@ def build_policy(cfg: TrainConfig, out: Path) -> dict:
 
     def fill(folder: Path) -> dict:
         demos = kept_demos(out, task, cfg.demos, style, cfg.seed)
+        start = time.perf_counter()
         policy, losses = train_policy(policy_cfg, demos, steps=cfg.steps, batch=cfg.batch, seed=cfg.seed)
+        trained = time.perf_counter() - start
         policy.save(folder)
         with measurement_store(out, folder) as store:
             measured = measure(folder, task, cfg.heldout, cfg.workers, store=store)
+            cost = build_cost(demos.seconds, trained, store)
         return {"policy": name, "demos": cfg.demos, "demo_attempts": demos.attempts,
                 "style": asdict(style), "train_steps": cfg.steps, "batch": cfg.batch, "seed": cfg.seed,
-                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measured
+                "loss_per_1k_steps": [round(x, 5) for x in losses]} | measured | cost
 
     return _into_new_folder(out, fill, policy_cfg)
 
@@ -336,7 +339,9 @@ def build_multitask_policy(name: str, recipes: dict[str, tuple[int, DemoStyle]],
     def fill(folder: Path) -> dict:
         per_task = [kept_demos(out, t, n, style, seed) for t, (n, style) in zip(tasks, recipes.values(),
                                                                               strict=True)]
+        start = time.perf_counter()
         policy, losses = train_policy(cfg, Demos.of_tasks(per_task), steps=steps, seed=seed)
+        trained = time.perf_counter() - start
         policy.save(folder)
         card = {"policy": name, "demos": sum(len(d.obs) for d in per_task), "train_steps": steps,
                 "seed": seed, "loss_per_1k_steps": [round(x, 5) for x in losses], "tasks": {}}
@@ -345,6 +350,7 @@ def build_multitask_policy(name: str, recipes: dict[str, tuple[int, DemoStyle]],
                 card["tasks"][task.name] = {"demos": n, "demo_attempts": demos.attempts,
                                             "style": asdict(style)} | measure(folder, task, heldout, workers,
                                                                               store=store)
+            card |= build_cost(sum(d.seconds for d in per_task), trained, store)
         for arm in ("base", "zero"):  # over all tasks' episodes: the task average
             rates = [entry[arm] for entry in card["tasks"].values()]
             card[arm] = Rate.counted(sum(round(r["success_rate"] * r["n"]) for r in rates),
@@ -384,6 +390,14 @@ def measurement_store(out: Path, folder: Path) -> Iterator[RunStore]:
         yield store
     for file in path.parent.glob(f"{glob.escape(path.name)}*"):  # the store and what SQLite keeps beside it
         file.unlink()
+
+
+def build_cost(demos_seconds: float, train_seconds: float, store: RunStore) -> dict:
+    """What a build took: collecting its demonstrations and training (wall time, one core), and
+    its measurement's episodes' own times summed, one core each, over every part of a resumed build."""
+    episodes = sum(row.wall_time for row in store.episodes())
+    return {"wall_s": {"demos": round(demos_seconds, 1), "train": round(train_seconds, 1),
+                       "measure_episodes": round(episodes, 1)}}
 
 
 def measure(policy_dir: Path, task, heldout: int, workers: int = 1, *,
@@ -495,7 +509,18 @@ def _training_line(card: dict, cfg: PolicyConfig) -> str:
     losses, steps = card["loss_per_1k_steps"], card["train_steps"]
     rate = "cosine learning rate" + (f", frames shifted by up to {SHIFT} px" if cfg.image_size else "")
     return f"""- **Training**: {steps} AdamW steps, batch {card.get('batch', 256)}, {rate}, seed
-  {card['seed']}; mean loss over the first / last (up to) 1k steps: {losses[0]:.4f} / {losses[-1]:.4f}."""
+  {card['seed']}; mean loss over the first / last (up to) 1k steps: {losses[0]:.4f} / {losses[-1]:.4f}.""" + \
+        _cost_line(card)
+
+
+def _cost_line(card: dict) -> str:
+    """What the build took, where its card records it (cards of earlier builds do not)."""
+    if "wall_s" not in card:
+        return ""
+    minutes = {key: f"{seconds / 60:.1f} min" for key, seconds in card["wall_s"].items()}
+    return f"""
+- **Build time**: demonstrations {minutes['demos']}, training {minutes['train']}, measurement
+  {minutes['measure_episodes']} of episodes (one core each, summed over every part of a resumed build)."""
 
 
 REBUILD_NOTE = """\
