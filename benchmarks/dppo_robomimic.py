@@ -63,7 +63,15 @@ from goldenticket.files import new_folder_beside, write_atomic
 from goldenticket.policies.dppo import DiffusionMLP, NetworkSpec, alphas_cumprod, save_checkpoint
 from goldenticket.seeds import seeds_in
 from goldenticket.tasks import get_task
-from goldenticket.train import Demos, DemoStyle, forget_kept_demos, kept_demos, measure, measurement_store
+from goldenticket.train import (
+    Demos,
+    DemoStyle,
+    episodes_seconds,
+    forget_kept_demos,
+    kept_demos,
+    measure,
+    measurement_store,
+)
 
 
 @dataclass(frozen=True)
@@ -229,8 +237,10 @@ def run(args: argparse.Namespace) -> None:
     with measurement_store(out, out) as store:  # a killed measurement resumes
         measured = measure(out, task, args.heldout, args.workers, noise_shape=(recipe.horizon_steps,
                                                                                task.action_dim), store=store)
+        episodes = episodes_seconds(store)
     record |= {"policy": str(out), "ddim_steps": DENOISING_STEPS, "heldout": args.heldout} | measured
-    record["wall_s"] |= {"measure": round(time.perf_counter() - start, 1), "measure_workers": args.workers}
+    record["wall_s"] |= {"measure": round(time.perf_counter() - start, 1), "measure_workers": args.workers,
+                         "measure_episodes": episodes}
     official = asked == settings(recipe.demos, recipe.style, STEPS, SEED) and args.heldout == HELDOUT
     path = RESULTS / f"dppo_{args.task}.json" if official else out / "measured.json"
     write_atomic(path, json.dumps(record, indent=2) + "\n")

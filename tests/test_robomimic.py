@@ -1,6 +1,8 @@
 """robomimic's tasks on robosuite 1.5.2 (goldenticket.tasks.robomimic). Marked `robomimic`: they run in
 the venv with the `robomimic` extra (README, "LeRobot, robomimic") and are skipped without it."""
 
+import argparse
+import dataclasses
 import importlib.metadata
 import importlib.util
 import json
@@ -10,6 +12,7 @@ import numpy as np
 import pytest
 
 from goldenticket import checks
+from goldenticket.store import EpisodeRow
 from goldenticket.tasks import get_task
 from goldenticket.tasks.base import observation_digest
 
@@ -209,6 +212,20 @@ def test_a_killed_dppo_build_trains_again_on_the_demonstrations_it_collected(tmp
     record = bench.build(task, recipe, tmp_path / "dppo", asked)
     assert collected == [2] and record["wall_s"]["demos"] > 0
     assert list(tmp_path.iterdir()) == [tmp_path / "dppo"]
+
+    def two_episodes(out, task, heldout, workers, noise_shape, store):
+        """Two episodes of 30 s each in the measurement's store (a resumed one holds its earlier ones)."""
+        store.record([EpisodeRow(arm, task.name, 1, "heldout", False, 0.0, 400, 30.0)
+                      for arm in ("base", "zero")])
+        return {arm: {"success_rate": 0.0, "ci_low": 0.0, "ci_high": 0.79, "n": 1}
+                for arm in ("base", "zero")}
+
+    monkeypatch.setattr(bench, "measure", two_episodes)
+    monkeypatch.setitem(bench.RECIPES, "lift", dataclasses.replace(recipe, style=DemoStyle()))
+    bench.run(argparse.Namespace(task="lift", demos=2, steps=3, seed=0, heldout=1, workers=1,
+                                 out=tmp_path / "dppo"))
+    measured = json.loads((tmp_path / "dppo" / "measured.json").read_text())
+    assert measured["wall_s"]["measure_episodes"] == 60.0  # both episodes', not the wall clock's
 
 
 def dppo_for_10_observations(folder) -> str:

@@ -394,10 +394,15 @@ def measurement_store(out: Path, folder: Path) -> Iterator[RunStore]:
 
 def build_cost(demos_seconds: float, train_seconds: float, store: RunStore) -> dict:
     """What a build took: collecting its demonstrations and training (wall time, one core), and
-    its measurement's episodes' own times summed, one core each, over every part of a resumed build."""
-    episodes = sum(row.wall_time for row in store.episodes())
+    its measurement's episodes' own times (`episodes_seconds`)."""
     return {"wall_s": {"demos": round(demos_seconds, 1), "train": round(train_seconds, 1),
-                       "measure_episodes": round(episodes, 1)}}
+                       "measure_episodes": episodes_seconds(store)}}
+
+
+def episodes_seconds(store: RunStore) -> float:
+    """The episodes' own wall times in `store`, summed (one core each): over every part of a
+    measurement stopped and resumed, where a wall clock counts only the last."""
+    return round(sum(row.wall_time for row in store.episodes()), 1)
 
 
 def measure(policy_dir: Path, task, heldout: int, workers: int = 1, *,
