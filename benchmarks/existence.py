@@ -108,10 +108,10 @@ def run_pair(task: str, policy: str, runs: Path, workers: int, fresh_ranges: int
     for i, key in enumerate(FRESH_RANGES[:fresh_ranges]):
         best[key] = fresh_check(Path(best["ticket_path"]), policy, task, out, workers, i)
     return summary | {"wall_time_s": round(time.perf_counter() - start), "workers": workers,
-                      "episode_seconds": episode_seconds(out, best["ticket_id"])}
+                      "episode_seconds": pair_episode_seconds(out, best["ticket_id"])}
 
 
-def episode_seconds(out: Path, ticket: str) -> int:
+def pair_episode_seconds(out: Path, ticket: str) -> int:
     """The pair's own episodes' wall times in its run folder, summed: the search's, validation's and
     verdict's, and the fresh check's of the base, the zero ticket and `ticket` (not those of a ticket
     judged beside them there). What the pair cost, however many times its run was stopped and resumed

@@ -412,7 +412,7 @@ def test_a_pairs_episodes_time_counts_every_part_of_its_run_and_only_its_own_fre
         store.record([episode("abc", 100.0), episode("def", 20.0), episode("zero", 2.0)])
     with RunStore(tmp_path / f"{existence.FRESH_RANGES[0]}.sqlite") as store:
         store.record([episode("abc", 10.0), episode("base", 5.0), episode("def", 1000.0)])
-    assert existence.episode_seconds(tmp_path, "abc") == 137
+    assert existence.pair_episode_seconds(tmp_path, "abc") == 137
 
 
 def test_existence_runs_only_the_policies_asked_for(monkeypatch):
