@@ -5,6 +5,7 @@ import sys
 import budget_curve
 import dsrl
 import existence
+import multitask
 import numpy as np
 import pytest
 import search_methods
@@ -506,3 +507,24 @@ def test_untuned_bench_draws_each_searchs_budget_curve():
     assert curve[2] == "| pair | search | 250 | 1250 |"
     assert curve[4] == "| fetch-push | tiled | 70.0% / 70.0% | 50.0% / 50.0% (the base) |"
     assert len(curve) == 5  # franka-1003 has one budget: no curve
+
+
+def test_a_multitask_study_searches_each_task_and_all_together_and_judges_them_on_fresh_seeds(tmp_path):
+    study = dataclasses.replace(multitask.mt10(None), tasks=("metaworld/reach-v3", "metaworld/push-v3"),
+                                method="rs", budget=10, heldout=2, fresh=range(1_000_100, 1_000_102))
+    results, matrix = multitask.run(study, tmp_path, workers=1)
+    assert results["multitask"]["search_episodes"] <= 20 and set(matrix.tasks) == set(study.tasks)
+    for task in study.tasks:
+        assert [results["fresh"][task][arm]["n"] for arm in multitask.ARMS] == [2] * len(multitask.ARMS)
+    again, _ = multitask.run(study, tmp_path, workers=1)  # every episode read back from the run folders
+    assert again["fresh"] == results["fresh"] and again["transfer"] == results["transfer"]
+    table = multitask.markdown(results, study, workers=1)
+    assert "### Fresh held-out seeds 1000100:1000102 (2 per task)" in table
+    assert "Search: rs, 10 search episodes per task" in table and "first 2 held-out seeds" in table
+
+
+def test_the_libero_study_runs_the_shipped_smolvla_on_its_five_tasks_with_the_search_defaults():
+    study = multitask.libero_object(None)
+    assert study.policy == "examples/smolvla_libero_policy" and len(study.tasks) == 5
+    assert study.search() == {"env_option": {"observation_height": 64, "observation_width": 64}}
+    assert set(study.fresh).isdisjoint(range(1_000_000, 1_000_000 + study.heldout))
